@@ -1,0 +1,112 @@
+"""The RPM-Net registration loop: features, annealed match matrix, weighted Procrustes, in a ``lax.scan``.
+
+What never changes across iterations is computed once: the reference features, and the source
+neighbourhoods with their PPF (rigid motions preserve both); each iteration only rotates the cached source
+offsets. Every iteration's transform is absolute (solved against the *original* source), and it is
+detached before it moves the source for the next iteration, as in the official implementation.
+
+NaNs: inputs are not inspected under jit. A NaN coordinate or normal in one pair makes that pair's outputs
+NaN (GroupNorm statistics are per pair), while the other pairs of the batch are unaffected.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from rpmnet_jax import config as config_lib
+from rpmnet_jax import grouping, model, ppf, procrustes, se3, sinkhorn, validation
+
+_EPS = 1e-5
+
+
+class Registration(NamedTuple):
+    """Per-iteration outputs of :func:`register` (``I`` = iterations)."""
+
+    transforms: jax.Array  # (I, B, 3, 4): maps source onto reference
+    perm_matrices: jax.Array  # (I, B, J, K): match matrix, slack removed
+    weighted_ref: jax.Array  # (I, B, J, 3): soft correspondences ŷ_j
+    alpha: jax.Array  # (I, B)
+    beta: jax.Array  # (I, B)
+
+    @property
+    def transform(self) -> jax.Array:
+        """Final transform ``(B, 3, 4)``."""
+        return self.transforms[-1]
+
+
+class Neighbourhoods(NamedTuple):
+    """Grouped neighbourhoods of a cloud ``(B, N, ·)``: pose-independent parts."""
+
+    dxyz: jax.Array  # (B, N, k, 3), offsets p_i - p_c in the cloud's own frame
+    ppf: jax.Array  # (B, N, k, 4), rigid-invariant
+
+
+def group(xyz, normals, cfg: config_lib.RPMNetConfig) -> Neighbourhoods:
+    """Ball-query grouping of ``xyz, normals (B, N, 3)``."""
+    _, dxyz, feats = ppf.group_with_ppf(xyz, normals, cfg.radius, cfg.num_neighbors, cfg.query_chunk)
+    return Neighbourhoods(dxyz, feats)
+
+
+def features(params, xyz, hood: Neighbourhoods, cfg: config_lib.RPMNetConfig):
+    """Hybrid features ``(B, N, D)`` from centres ``xyz (B, N, 3)`` and their neighbourhoods."""
+    k = hood.dxyz.shape[2]
+    parts = {
+        "xyz": lambda: jnp.broadcast_to(xyz[:, :, None, :], xyz.shape[:2] + (k, 3)),
+        "dxyz": lambda: hood.dxyz,
+        "ppf": lambda: hood.ppf,
+    }
+    fused = jnp.concatenate([parts[f]() for f in cfg.features], axis=-1)
+    return model.feature_net(cfg).apply({"params": params["feat_extractor"]}, fused)
+
+
+def annealing(params, xyz_src, xyz_ref, cfg: config_lib.RPMNetConfig):
+    """``(beta (B,), alpha (B,))`` for a source/reference pair of point sets."""
+    return model.parameter_net(cfg).apply({"params": params["weights_net"]}, xyz_src, xyz_ref)
+
+
+def match_matrix(feat_src, feat_ref, beta, alpha, cfg: config_lib.RPMNetConfig):
+    """Match matrix ``(B, J, K)`` from features ``(B, J, D)``, ``(B, K, D)`` and ``beta, alpha (B,)``."""
+    dist = grouping.square_distance(feat_src, feat_ref)
+    affinity = -beta[:, None, None] * (dist - alpha[:, None, None])
+    return jnp.exp(sinkhorn.log_sinkhorn(affinity, cfg.num_sk_iters, cfg.add_slack))
+
+
+def register(params, src, ref, cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(),
+             num_iters: int | None = None) -> Registration:
+    """Registers ``src (B, J, 6)`` onto ``ref (B, K, 6)`` (xyz + unit normals).
+
+    ``num_iters`` defaults to ``cfg.num_reg_iters``; under ``jax.jit`` pass it as a static argument.
+    Returns a :class:`Registration`; ``.transform (B, 3, 4)`` maps the source onto the reference.
+    """
+    validation.check_pair(src, ref)
+    num_iters = cfg.num_reg_iters if num_iters is None else int(num_iters)
+    if num_iters < 1:
+        raise ValueError(f"num_iters must be >= 1, got {num_iters}")
+    src = jnp.asarray(src)
+    ref = jnp.asarray(ref)
+    xyz_src, norm_src = src[..., :3], src[..., 3:6]
+    xyz_ref, norm_ref = ref[..., :3], ref[..., 3:6]
+
+    feat_ref = features(params, xyz_ref, group(xyz_ref, norm_ref, cfg), cfg)
+    hood_src = group(xyz_src, norm_src, cfg)
+
+    def iteration(transform, _):
+        transform = lax.stop_gradient(transform)
+        xyz_t = se3.apply(transform, xyz_src)
+        rot = transform[:, :3, :3]
+        hood_t = hood_src._replace(dxyz=jnp.einsum("bnkc,bdc->bnkd", hood_src.dxyz, rot))
+        beta, alpha = annealing(params, xyz_t, xyz_ref, cfg)
+        feat_src = features(params, xyz_t, hood_t, cfg)
+        perm = match_matrix(feat_src, feat_ref, beta, alpha, cfg)
+        row_sum = jnp.sum(perm, axis=2)
+        weighted_ref = (perm @ xyz_ref) / (row_sum[..., None] + _EPS)
+        new_transform = procrustes.weighted_procrustes(xyz_src, weighted_ref, row_sum)
+        return new_transform, Registration(new_transform, perm, weighted_ref, alpha, beta)
+
+    init = se3.identity((src.shape[0],), xyz_src.dtype)
+    _, out = lax.scan(iteration, init, None, length=num_iters)
+    return out

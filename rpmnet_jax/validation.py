@@ -1,0 +1,30 @@
+"""Thin input checks run before tracing (on shapes and dtypes only, so they also work under jit)."""
+
+import numpy as np
+import jax.numpy as jnp
+
+
+def check_cloud(name: str, x, *, channels: int = 6):
+    """Raises ``ValueError`` unless ``x`` is a floating ``(B, N, channels)`` array with ``B, N ≥ 1``."""
+    shape = tuple(getattr(x, "shape", np.shape(x)))
+    dtype = getattr(x, "dtype", None)
+    if dtype is None:
+        dtype = np.asarray(x).dtype
+    if len(shape) != 3:
+        raise ValueError(f"{name} must have shape (B, N, {channels}) (xyz + normals), got rank {len(shape)} "
+                         f"shape {shape}")
+    if shape[-1] != channels:
+        raise ValueError(f"{name} must have {channels} channels in the last axis (xyz + normals), got shape {shape}")
+    if shape[0] == 0 or shape[1] == 0:
+        raise ValueError(f"{name} is empty: shape {shape}; every cloud needs at least one point")
+    if not jnp.issubdtype(dtype, jnp.floating):
+        raise ValueError(f"{name} must be a floating-point array, got dtype {dtype}")
+
+
+def check_pair(src, ref):
+    """Checks a source/reference pair of clouds ``(B, J, 6)`` and ``(B, K, 6)``."""
+    check_cloud("src", src)
+    check_cloud("ref", ref)
+    if src.shape[0] != ref.shape[0]:
+        raise ValueError(f"src and ref must have the same batch size, got src {tuple(src.shape)} "
+                         f"and ref {tuple(ref.shape)}")
