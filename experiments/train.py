@@ -21,7 +21,8 @@ def parse_args(argv=None) -> training.TrainConfig:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", choices=data.PROTOCOLS, default="noisy",
                    help="protocol: clean (same points), noisy (resampled + jitter), partial (+ crop to 70%%)")
-    p.add_argument("--data-root", default=None, help="ModelNet40 folder modelnet40_ply_hdf5_2048 (or its parent)")
+    p.add_argument("--data-root", default=None, help="ModelNet40 folder modelnet40_ply_hdf5_2048 (or its parent); several folders comma-separated "
+                   "are concatenated, and with --synthetic they are used next to the synthetic set")
     p.add_argument("--synthetic", action="store_true", help="train on the synthetic dataset, generated into the workdir")
     p.add_argument("--synthetic-train", type=int, default=400, help="synthetic training shapes (default 400)")
     p.add_argument("--synthetic-test", type=int, default=100, help="synthetic test shapes (default 100)")
@@ -46,9 +47,10 @@ def parse_args(argv=None) -> training.TrainConfig:
     a = p.parse_args(argv)
     if not a.synthetic and a.data_root is None:
         p.error("give --data-root (the ModelNet40 modelnet40_ply_hdf5_2048 folder) or --synthetic")
-    if a.data_root is not None and not os.path.exists(a.data_root):
-        p.error(f"--data-root {a.data_root!r} does not exist; download ModelNet40 (PointNet's "
-                "modelnet40_ply_hdf5_2048) or use --synthetic")
+    for root in (a.data_root or "").split(","):
+        if root and not os.path.exists(root):
+            p.error(f"--data-root {root!r} does not exist; download ModelNet40 (PointNet's "
+                    "modelnet40_ply_hdf5_2048) or use --synthetic")
     for name in ("epochs", "num_points", "val_every", "save_every", "keep", "train_iters", "val_iters"):
         if getattr(a, name) < 1:
             p.error(f"--{name.replace('_', '-')} must be >= 1")

@@ -250,3 +250,25 @@ class ModelNet40:
 
     def __getitem__(self, idx: int) -> dict:
         return self.get(int(idx))
+
+
+class Concat:
+    """Datasets one after another (e.g. real ModelNet40 shapes next to synthetic ones); same ``get`` API."""
+
+    def __init__(self, datasets):
+        self.datasets = list(datasets)
+        if not self.datasets:
+            raise ValueError("Concat needs at least one dataset")
+        self.offsets = np.cumsum([0] + [len(d) for d in self.datasets])
+
+    def __len__(self) -> int:
+        return int(self.offsets[-1])
+
+    def get(self, idx: int, epoch: int | None = None) -> dict:
+        if not 0 <= idx < len(self):
+            raise IndexError(f"index {idx} out of range for {len(self)} samples")
+        which = int(np.searchsorted(self.offsets, idx, side="right") - 1)
+        return self.datasets[which].get(idx - int(self.offsets[which]), epoch)
+
+    def __getitem__(self, idx: int) -> dict:
+        return self.get(int(idx))

@@ -202,15 +202,20 @@ def restore_params(path: str) -> dict:
 # --- the loop ---------------------------------------------------------------------------------------
 
 def _datasets(cfg: TrainConfig):
-    root = cfg.data_root
+    """Train/val sets: the synthetic set and/or every folder of ``cfg.data_root`` (comma-separated)."""
+    roots = [r for r in (cfg.data_root or "").split(",") if r]
     if cfg.synthetic:
         root = os.path.join(cfg.workdir, "synthetic")
         if not os.path.isfile(os.path.join(root, data.FOLDER, "shape_names.txt")):
             synthetic.write_dataset(root, cfg.synthetic_train, cfg.synthetic_test, seed=cfg.seed)
-    elif root is None:
+        roots.insert(0, root)
+    if not roots:
         raise FileNotFoundError("no --data-root given; pass the ModelNet40 folder or use --synthetic")
     kw = dict(protocol=cfg.dataset, num_points=cfg.num_points, seed=cfg.seed)
-    return data.ModelNet40(root, "train", **kw), data.ModelNet40(root, "val", **kw)
+    sets = [(data.ModelNet40(r, "train", **kw), data.ModelNet40(r, "val", **kw)) for r in roots]
+    if len(sets) == 1:
+        return sets[0]
+    return data.Concat(s[0] for s in sets), data.Concat(s[1] for s in sets if len(s[1]))
 
 
 def validate(params, val_set, cfg: TrainConfig, eval_fn=None, progress: bool = True) -> dict:

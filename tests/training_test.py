@@ -1,0 +1,145 @@
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+from rpmnet_jax import config as config_lib
+from rpmnet_jax import data, losses, synthetic, training
+
+TINY_MODEL = config_lib.RPMNetConfig(num_neighbors=8, feature_dim=16, num_reg_iters=2)
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def tiny_cfg(workdir, **kw):
+    base = dict(dataset="partial", synthetic=True, synthetic_train=40, synthetic_test=20, workdir=str(workdir),
+                batch_size=4, num_points=64, val_limit=4, save_every=1, model=TINY_MODEL, lr=1e-3)
+    base.update(kw)
+    return training.TrainConfig(**base)
+
+
+@pytest.fixture(scope="module")
+def tiny_batch(tmp_path_factory):
+    root = synthetic.write_dataset(tmp_path_factory.mktemp("syn"), 12, 4, seed=0)
+    ds = data.ModelNet40(root, "train", "partial", num_points=64, seed=0)
+    samples = [ds[i] for i in range(4)]
+    return {k: np.stack([s[k] for s in samples]) for k in training.DEVICE_KEYS}
+
+
+def test_first_step_golden_loss_and_descent(tiny_batch):
+    cfg = tiny_cfg("unused")
+    state = training.create_train_state(jax.random.PRNGKey(0), cfg)
+    expected = float(losses.training_loss(state.params, tiny_batch, cfg.model))
+    step = training.make_train_step(cfg)
+    state, scalars = step(state, tiny_batch)
+    np.testing.assert_allclose(scalars["loss"], expected, rtol=1e-5)
+    first = float(scalars["loss"])
+    for _ in range(15):
+        state, scalars = step(state, tiny_batch)
+    assert float(scalars["loss"]) < first
+    assert int(state.step) == 16 and int(state.skipped) == 0
+
+
+def test_nonfinite_update_is_skipped(tiny_batch):
+    cfg = tiny_cfg("unused")
+    state = training.create_train_state(jax.random.PRNGKey(0), cfg)
+    before = jax.tree.map(np.asarray, state.params)
+    bad = dict(tiny_batch, transform_gt=np.full_like(tiny_batch["transform_gt"], np.nan))
+    state, scalars = training.make_train_step(cfg)(state, bad)
+    assert not bool(scalars["finite"]) and int(state.skipped) == 1 and int(state.nonfinite) == 1
+    jax.tree.map(np.testing.assert_array_equal, jax.tree.map(np.asarray, state.params), before)
+
+
+def test_resume_matches_uninterrupted_run(tmp_path):
+    full = training.train_and_evaluate(tiny_cfg(tmp_path / "full", max_steps=4), progress=False)
+    first = training.train_and_evaluate(tiny_cfg(tmp_path / "split", max_steps=2), progress=False)
+    second = training.train_and_evaluate(tiny_cfg(tmp_path / "split", max_steps=4), progress=False)
+    assert len(full["losses"]) == 4 and len(first["losses"]) == 2 and len(second["losses"]) == 2
+    np.testing.assert_allclose(first["losses"] + second["losses"], full["losses"], rtol=1e-6)
+    assert second["step"] == 4 and full["validation"] is not None
+    saved = json.load(open(tmp_path / "split" / "config.json"))
+    assert saved["model"]["feature_dim"] == 16
+    params = training.restore_params(str(tmp_path / "split"))
+    assert params["feat_extractor"]["postpool_6"]["kernel"].shape == (16, 16)
+
+
+def test_corrupt_checkpoint_falls_back(tmp_path, caplog):
+    cfg = tiny_cfg(tmp_path / "run", max_steps=2)
+    training.train_and_evaluate(cfg, progress=False)
+    latest = tmp_path / "run" / "checkpoints" / "latest"
+    steps = sorted(int(p.name) for p in latest.iterdir() if p.name.isdigit())
+    assert steps[-1] == 2 and 1 in steps
+    for item in (latest / "2" / "default").iterdir():  # damage the newest checkpoint
+        if item.is_dir():
+            shutil.rmtree(item)
+        else:
+            item.write_bytes(b"garbage")
+    ckpt = training.Checkpoints(str(tmp_path / "run"), 3)
+    template = training.create_train_state(jax.random.PRNGKey(0), cfg)
+    restored = ckpt.restore_latest(template)
+    ckpt.close()
+    assert int(restored.step) == 1
+    assert "unreadable" in caplog.text
+    for step in steps:  # nothing readable: a clear error
+        for item in (latest / str(step) / "default").iterdir():
+            if item.is_file():
+                item.write_bytes(b"garbage")
+            else:
+                shutil.rmtree(item)
+    ckpt = training.Checkpoints(str(tmp_path / "run"), 3)
+    with pytest.raises(RuntimeError, match="no readable checkpoint"):
+        ckpt.restore_latest(template)
+    ckpt.close()
+
+
+def test_resume_refuses_a_different_config(tmp_path):
+    training.train_and_evaluate(tiny_cfg(tmp_path / "run", max_steps=1), progress=False)
+    with pytest.raises(ValueError, match="different configuration"):
+        training.train_and_evaluate(tiny_cfg(tmp_path / "run", max_steps=2, lr=5e-4), progress=False)
+
+
+_MULTI = r"""
+import json, sys, jax, numpy as np
+sys.path.insert(0, {tests!r})
+from training_test import tiny_cfg
+from rpmnet_jax import training
+s = training.train_and_evaluate(tiny_cfg({workdir!r}, max_steps=3, val_limit=None), progress=False)
+params = training.restore_params({workdir!r})
+print(json.dumps({{"devices": s["devices"], "losses": s["losses"],
+                  "norm": float(sum(np.sum(np.asarray(x, np.float64) ** 2) for x in jax.tree.leaves(params)))}}))
+"""
+
+
+def _run_with_devices(n, workdir):
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}", JAX_PLATFORMS="cpu")
+    code = _MULTI.format(tests=os.path.dirname(__file__), workdir=str(workdir))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=REPO)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_four_devices_match_one(tmp_path):
+    one = _run_with_devices(1, tmp_path / "one")
+    four = _run_with_devices(4, tmp_path / "four")
+    assert one["devices"] == 1 and four["devices"] == 4
+    np.testing.assert_allclose(four["losses"], one["losses"], rtol=1e-4)
+    np.testing.assert_allclose(four["norm"], one["norm"], rtol=1e-4)
+
+
+def test_cli_help_and_bad_flags():
+    run = lambda *a: subprocess.run([sys.executable, "-m", "experiments.train", *a], capture_output=True, text=True,
+                                    cwd=REPO)
+    out = run("--help")
+    assert out.returncode == 0 and "--max-steps" in out.stdout and "--anneal" in out.stdout
+    out = run("--dataset=noisy")
+    assert out.returncode == 2 and "--data-root" in out.stderr and "--synthetic" in out.stderr
+    out = run("--dataset=jitter", "--synthetic")
+    assert out.returncode == 2 and "invalid choice" in out.stderr
+    out = run("--synthetic", "--features", "xyz,normals")
+    assert out.returncode == 2 and "features" in out.stderr
+    out = run("--data-root", "/nonexistent/modelnet")
+    assert out.returncode == 2 and "does not exist" in out.stderr
