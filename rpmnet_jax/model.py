@@ -105,23 +105,53 @@ def _group_norm(groups: int, name: str) -> GroupNorm:
     return GroupNorm(groups=groups, name=name)
 
 
+class _DenseParams(nn.Module):
+    """The ``kernel (fan_in, features)`` and ``bias`` of a Dense layer, initialised like :func:`_dense`."""
+
+    fan_in: int
+    features: int
+
+    @nn.compact
+    def __call__(self):
+        bound = 1.0 / self.fan_in**0.5
+        return (self.param("kernel", _uniform(bound), (self.fan_in, self.features)),
+                self.param("bias", _uniform(bound), (self.features,)))
+
+
+class _NormParams(nn.Module):
+    """The ``scale`` and ``bias`` ``(C,)`` of a :class:`GroupNorm` layer."""
+
+    channels: int
+
+    @nn.compact
+    def __call__(self):
+        return (self.param("scale", nn.initializers.ones, (self.channels,)),
+                self.param("bias", nn.initializers.zeros, (self.channels,)))
+
+
 class FeatureNet(nn.Module):
     """Hybrid-feature PointNet: per-neighbour MLP, max over neighbours, MLP, L2 normalisation.
 
-    ``(B, N, k, C_raw)`` → ``(B, N, feature_dim)`` unit vectors.
+    ``(B, N, k, C_raw)`` → ``(B, N, feature_dim)`` unit vectors. With ``fused`` the per-neighbour part runs
+    as one operation with a lean hand-written backward (:func:`rpmnet_jax.prepool.mlp_max`).
     """
 
     raw_dim: int = 10
     feature_dim: int = 96
+    fused: bool = False
 
     @nn.compact
     def __call__(self, x_BxNxKxC):
+        from rpmnet_jax import prepool  # prepool builds on this module's GroupNorm helpers
+
         d = self.feature_dim
-        h = x_BxNxKxC
+        layers = []
         for i, (fan_in, out) in enumerate([(self.raw_dim, d), (d, d), (d, 2 * d)]):
-            h = _dense(fan_in, out, f"prepool_{3 * i}")(h)
-            h = nn.relu(_group_norm(8, f"prepool_{3 * i + 1}")(h))
-        h_BxNxC = jnp.max(h, axis=2)
+            kernel, bias = _DenseParams(fan_in, out, name=f"prepool_{3 * i}")()
+            scale, shift = _NormParams(out, name=f"prepool_{3 * i + 1}")()
+            layers.append(prepool.Layer(kernel, bias, scale, shift))
+        pool = prepool.mlp_max if self.fused else prepool.mlp_max_reference
+        h_BxNxC = pool(x_BxNxKxC, tuple(layers), 8)
         h_BxNxC = nn.relu(_group_norm(8, "postpool_1")(_dense(2 * d, 2 * d, "postpool_0")(h_BxNxC)))
         h_BxNxC = nn.relu(_group_norm(8, "postpool_4")(_dense(2 * d, d, "postpool_3")(h_BxNxC)))
         h_BxNxC = _dense(d, d, "postpool_6")(h_BxNxC)
@@ -163,7 +193,7 @@ class ConstantParameters(nn.Module):
 
 
 def feature_net(cfg: config_lib.RPMNetConfig) -> FeatureNet:
-    return FeatureNet(raw_dim=cfg.raw_feature_dim, feature_dim=cfg.feature_dim)
+    return FeatureNet(raw_dim=cfg.raw_feature_dim, feature_dim=cfg.feature_dim, fused=cfg.fused_prepool)
 
 
 def parameter_net(cfg: config_lib.RPMNetConfig) -> nn.Module:

@@ -253,7 +253,10 @@ def _check_resume_config(cfg: TrainConfig) -> None:
         with open(path) as f:
             saved = json.load(f)
         keys = ("dataset", "num_points", "lr", "seed", "model", "synthetic", "data_root")
-        diff = {k: (saved.get(k), current.get(k)) for k in keys if saved.get(k) != current.get(k)}
+        speed_only = lambda m: {k: v for k, v in (m or {}).items() if k != "fused_prepool"}
+        diff = {k: (saved.get(k), current.get(k)) for k in keys
+                if (speed_only(saved.get(k)) if k == "model" else saved.get(k))
+                != (speed_only(current.get(k)) if k == "model" else current.get(k))}
         if diff:
             raise ValueError(f"{cfg.workdir} holds a run with a different configuration {diff}; "
                              "use another --workdir to start a new run")

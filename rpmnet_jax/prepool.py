@@ -1,0 +1,111 @@
+"""The per-neighbour MLP of the feature network fused with its max-pool, with a lean hand-written backward.
+
+``[Dense → GroupNorm → ReLU] × L → max over neighbours`` dominates RPM-Net's cost: every activation is
+``(B, N, k, C)`` with ``k = 64``. Automatic differentiation keeps several such tensors per layer and
+back-propagates the max through an equality mask with tie counts. Here the forward saves only the
+pre-normalisation activations, the group statistics and the argmax over neighbours (int32, ``k`` times
+smaller); the backward recomputes the cheap element-wise parts and routes the pooled gradient to the
+argmax. About 2x faster to differentiate than :func:`mlp_max_reference` on CPU.
+
+Gradients equal autodiff's in float64 (to 1e-15). In float32 they are *closer* to the float64 values than
+float32 autodiff is (measured on the official fixtures: 1e-6 vs up to 4e-3 relative on a few GroupNorm
+biases, where torch's float32 gradients carry the same 4e-3 error as float32 autodiff). Ties go to the
+first maximum instead of being split; the sum is the same.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+
+from rpmnet_jax import model
+
+
+class Layer(NamedTuple):
+    """Parameters of one ``Dense → GroupNorm → ReLU`` layer."""
+
+    kernel: jax.Array  # (C_in, C_out)
+    bias: jax.Array  # (C_out,)
+    scale: jax.Array  # (C_out,) GroupNorm scale
+    shift: jax.Array  # (C_out,) GroupNorm bias
+
+
+def _normalise(z, mean_g, inv_g, groups):
+    """``xhat`` of pre-norm activations ``z (B, N, k, C)`` given group stats ``(B, G)``."""
+    c = z.shape[-1]
+    return (z - model._per_channel(mean_g, c, z.ndim)) * model._per_channel(inv_g, c, z.ndim)
+
+
+def mlp_max_reference(x, layers: Sequence[Layer], groups: int = 8, eps: float = model._GN_EPS):
+    """The same function differentiated by JAX (float32 gradients match the official ones bit for bit)."""
+    h = x
+    for layer in layers:
+        h = jax.nn.relu(model.group_norm(h @ layer.kernel + layer.bias, layer.scale, layer.shift, groups, eps))
+    return jnp.max(h, axis=2)
+
+
+def _activate(z, mean_g, inv_g, layer: Layer):
+    """``relu(GroupNorm(z))`` in torch's arithmetic: ``z * (inv * scale) + (shift - mean * inv * scale)``."""
+    c = z.shape[-1]
+    a = model._per_channel(inv_g, c, z.ndim) * layer.scale
+    return jax.nn.relu(z * a + (layer.shift - model._per_channel(mean_g, c, z.ndim) * a))
+
+
+def _forward(x, layers, groups, eps):
+    h, saved = x, []
+    for layer in layers:
+        z = h @ layer.kernel + layer.bias
+        mean_g, inv_g = model._group_stats(z, groups, eps)
+        h = _activate(z, mean_g, inv_g, layer)
+        saved.append((z, mean_g, inv_g, h > 0))
+    return h, saved
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
+def mlp_max(x, layers: Sequence[Layer], groups: int = 8, eps: float = model._GN_EPS):
+    """``x (B, N, k, C_in)`` → ``max_k relu(GN(... relu(GN(x W1 + b1)) ...)) (B, N, C_out)``."""
+    return jnp.max(_forward(x, layers, groups, eps)[0], axis=2)
+
+
+def _mlp_max_fwd(x, layers, groups, eps):
+    h, saved = _forward(x, layers, groups, eps)
+    arg = jnp.argmax(h, axis=2).astype(jnp.int32)  # (B, N, C)
+    out = jnp.take_along_axis(h, arg[:, :, None, :], axis=2)[:, :, 0, :]
+    return out, (x, tuple(layers), tuple(saved), arg)
+
+
+def _mlp_max_bwd(groups, eps, res, d_out):
+    x, layers, saved, arg = res
+    k = x.shape[2]
+    hit = jnp.arange(k, dtype=jnp.int32)[None, None, :, None] == arg[:, :, None, :]
+    dh = jnp.where(hit, d_out[:, :, None, :], 0.0)  # (B, N, k, C): gradient reaching the last ReLU
+    grads = []
+    for i in range(len(layers) - 1, -1, -1):
+        layer, (z, mean_g, inv_g, active) = layers[i], saved[i]
+        b, c = z.shape[0], z.shape[-1]
+        xhat = _normalise(z, mean_g, inv_g, groups)
+        dy = jnp.where(active, dh, 0.0)
+        axes = tuple(range(z.ndim - 1))
+        d_scale, d_shift = jnp.sum(dy * xhat, axis=axes), jnp.sum(dy, axis=axes)
+        g = dy * layer.scale
+        rows = lambda t: t.reshape(b, -1, groups, c // groups)
+        m_g = jnp.mean(rows(g), axis=(1, 3))
+        m_gx = jnp.mean(rows(g * xhat), axis=(1, 3))
+        dz = model._per_channel(inv_g, c, z.ndim) * (
+            g - model._per_channel(m_g, c, z.ndim) - xhat * model._per_channel(m_gx, c, z.ndim))
+        if i == 0:
+            h_in = x
+        else:
+            h_in = _activate(*saved[i - 1][:3], layers[i - 1])
+        c_in = h_in.shape[-1]
+        d_kernel = h_in.reshape(-1, c_in).T @ dz.reshape(-1, c)
+        d_bias = jnp.sum(dz, axis=axes)
+        grads.append(Layer(d_kernel, d_bias, d_scale, d_shift))
+        dh = dz @ layer.kernel.T
+    return dh, tuple(reversed(grads))
+
+
+mlp_max.defvjp(_mlp_max_fwd, _mlp_max_bwd)
