@@ -14,7 +14,7 @@ import os
 import sys
 
 from rpmnet_jax import config as config_lib
-from rpmnet_jax import data, training
+from rpmnet_jax import data, runtime, training
 
 
 def parse_args(argv=None) -> training.TrainConfig:
@@ -88,4 +88,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    runtime.use_huge_pages()
     sys.exit(main())

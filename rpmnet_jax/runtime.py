@@ -1,0 +1,44 @@
+"""Process set-up for the command-line tools: large pages for XLA's CPU buffers.
+
+RPM-Net's activations are ``(B, N, 64, C)`` tensors of hundreds of MB; XLA's CPU runtime allocates them
+afresh through ``malloc`` and the first touch of every 4 KiB page faults. With glibc's ``hugetlb`` tunable
+malloc asks for transparent huge pages, which makes the memory-bound parts of a training step ~1.4x faster
+(measured: 18.6 s → 13.0 s per B=8, 717-point step of autodiff gradients on a 2-core CPU). The tunable is
+read only at process start, so a CLI re-executes itself once with it set.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+TUNABLES = ("glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=4294967295:"
+            "glibc.malloc.trim_threshold=68719476736")
+_OPT_OUT = "RPMNET_NO_HUGEPAGES"
+
+
+def _thp_available() -> bool:
+    try:
+        with open("/sys/kernel/mm/transparent_hugepage/enabled") as f:
+            return "[never]" not in f.read()
+    except OSError:
+        return False
+
+
+def use_huge_pages() -> None:
+    """Re-executes the current command with the malloc tunables set (Linux/glibc only; no-op otherwise).
+
+    Call it first thing in a ``__main__`` block, never from library code. Set ``RPMNET_NO_HUGEPAGES=1`` to
+    opt out.
+    """
+    if (not sys.platform.startswith("linux") or os.environ.get(_OPT_OUT) or "hugetlb" in
+            os.environ.get("GLIBC_TUNABLES", "") or not _thp_available() or not hasattr(sys, "orig_argv")):
+        return
+    import platform
+    if platform.libc_ver()[0] != "glibc":
+        return
+    env = dict(os.environ, GLIBC_TUNABLES=":".join(t for t in (os.environ.get("GLIBC_TUNABLES"), TUNABLES) if t))
+    env[_OPT_OUT] = "1"  # never loop
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(sys.executable, [sys.executable] + list(sys.orig_argv[1:]), env)
