@@ -1,0 +1,137 @@
+"""Register your own point clouds: any units, any size, normals optional.
+
+Both clouds are centred and scaled by one common similarity into the unit sphere the model was trained
+on, downsampled, registered, and the result is mapped back, so the returned 4×4 transform is rigid and in
+the caller's units.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from rpmnet_jax import config as config_lib
+from rpmnet_jax import normals as normals_lib
+from rpmnet_jax import pretrained, registration
+
+
+class Alignment(NamedTuple):
+    transform: np.ndarray  # (4, 4): maps source points onto the reference, caller's units
+    aligned: np.ndarray  # (N, 3): the full source cloud moved by ``transform``
+    transforms: np.ndarray  # (I, 4, 4): per-iteration transforms, caller's units
+    confidence: float  # mean inlier mass of the last match matrix, in [0, 1]
+    num_points: tuple[int, int]  # points used for source and reference
+
+
+def _clean(name: str, points, normals):
+    points = np.asarray(points, np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{name}: expected points of shape (N, 3), got {points.shape}")
+    if normals is not None:
+        normals = np.asarray(normals, np.float64)
+        if normals.shape != points.shape:
+            raise ValueError(f"{name}: normals {normals.shape} do not match points {points.shape}")
+    finite = np.all(np.isfinite(points), axis=1)
+    if normals is not None:
+        finite &= np.all(np.isfinite(normals), axis=1)
+    if not np.all(finite):
+        dropped = int(np.sum(~finite))
+        warnings.warn(f"{name}: dropped {dropped} points with NaN/inf values", stacklevel=3)
+        points = points[finite]
+        normals = None if normals is None else normals[finite]
+    if len(points) < 3:
+        raise ValueError(f"{name}: {len(points)} usable points; at least 3 are needed")
+    sv = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    if sv[0] <= 1e-12 * max(1.0, np.abs(points).max()) or sv[1] <= 1e-6 * sv[0]:
+        raise ValueError(f"{name}: degenerate cloud (all points coincident or collinear)")
+    if normals is not None:
+        length = np.linalg.norm(normals, axis=1)
+        if np.any(length < 1e-8):
+            raise ValueError(f"{name}: {int(np.sum(length < 1e-8))} normals have zero length; "
+                             "fix them or re-estimate normals")
+        normals = normals / length[:, None]
+    return points, normals
+
+
+def _downsample(rng: np.random.Generator, n_total: int, n: int, method: str) -> np.ndarray:
+    if n_total <= n:
+        return np.arange(n_total)
+    if method == "random":
+        return np.sort(rng.choice(n_total, n, replace=False))
+    raise ValueError(f"unknown sampling {method!r}")
+
+
+def _fps(points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Farthest-point sampling indices ``(n,)``."""
+    chosen = np.empty(n, np.int64)
+    chosen[0] = rng.integers(len(points))
+    dist = np.full(len(points), np.inf)
+    for i in range(1, n):
+        dist = np.minimum(dist, np.sum((points - points[chosen[i - 1]]) ** 2, axis=1))
+        chosen[i] = int(np.argmax(dist))
+    return np.sort(chosen)
+
+
+def _to_4x4(t34: np.ndarray) -> np.ndarray:
+    out = np.zeros(t34.shape[:-2] + (4, 4))
+    out[..., :3, :] = t34
+    out[..., 3, 3] = 1.0
+    return out
+
+
+_JITTED = {}
+
+
+def _register_fn(cfg, num_iters):
+    key = (cfg, num_iters)
+    if key not in _JITTED:
+        _JITTED[key] = jax.jit(lambda p, s, r: registration.register(p, s, r, cfg, num_iters=num_iters))
+    return _JITTED[key]
+
+
+def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
+          num_points: int = 1024, num_iters: int = 5, sampling: str = "random", seed: int = 0,
+          reestimate_normals: bool = False, cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
+    """Rigidly aligns ``src_points (N, 3)`` onto ``ref_points (M, 3)``.
+
+    Normals (``(N, 3)``, any length > 0) are estimated when missing or when ``reestimate_normals``.
+    ``checkpoint``: orbax dir, ``.npz`` or official ``.pth``; default the shipped model (or pass
+    ``params``). ``sampling``: ``random`` or ``fps`` down to ``num_points`` per cloud.
+    """
+    if num_points < 3:
+        raise ValueError(f"num_points must be >= 3, got {num_points}")
+    if num_iters < 1:
+        raise ValueError(f"num_iters must be >= 1, got {num_iters}")
+    if sampling not in ("random", "fps"):
+        raise ValueError(f"sampling must be 'random' or 'fps', got {sampling!r}")
+    src, src_n = _clean("source", src_points, None if reestimate_normals else src_normals)
+    ref, ref_n = _clean("reference", ref_points, None if reestimate_normals else ref_normals)
+    params = params if params is not None else pretrained.load_params(checkpoint)
+    cfg = cfg or config_lib.RPMNetConfig()
+
+    both = np.concatenate([src, ref])
+    centre = both.mean(axis=0)
+    scale = float(np.max(np.linalg.norm(both - centre, axis=1)))
+    src_u, ref_u = (src - centre) / scale, (ref - centre) / scale
+    rng = np.random.default_rng(seed)
+    pick = (lambda x: _fps(x, min(num_points, len(x)), rng)) if sampling == "fps" else (
+        lambda x: _downsample(rng, len(x), num_points, "random"))
+    i_src, i_ref = pick(src_u), pick(ref_u)
+    src_s, ref_s = src_u[i_src], ref_u[i_ref]
+    n_src = src_n[i_src] if src_n is not None else normals_lib.estimate_normals(src_s)
+    n_ref = ref_n[i_ref] if ref_n is not None else normals_lib.estimate_normals(ref_s)
+    src6 = np.concatenate([src_s, n_src], 1)[None].astype(np.float32)
+    ref6 = np.concatenate([ref_s, n_ref], 1)[None].astype(np.float32)
+    reg = _register_fn(cfg, int(num_iters))(params, src6, ref6)
+    t_unit = np.asarray(reg.transforms[:, 0], np.float64)  # (I, 3, 4)
+    rot = t_unit[:, :, :3]
+    trans = scale * t_unit[:, :, 3] + centre - np.einsum("iab,b->ia", rot, centre)
+    transforms = _to_4x4(np.concatenate([rot, trans[:, :, None]], axis=2))
+    final = transforms[-1]
+    aligned = src @ final[:3, :3].T + final[:3, 3]
+    perm = np.asarray(reg.perm_matrices[-1, 0])
+    confidence = float(0.5 * (perm.sum(axis=1).mean() + perm.sum(axis=0).mean()))
+    return Alignment(final, aligned, transforms, confidence, (len(i_src), len(i_ref)))

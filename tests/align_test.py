@@ -1,0 +1,178 @@
+"""Own-cloud registration: file formats, normal estimation, preprocessing, the CLI and its errors."""
+
+import json
+import os
+
+import jax
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import rpmnet_jax
+from rpmnet_jax import cli, cloud_io, convert, normals, pretrained, synthetic
+
+
+@pytest.fixture(scope="module")
+def random_weights(tmp_path_factory):
+    path = tmp_path_factory.mktemp("w") / "random.npz"
+    np.savez(path, **convert.params_to_torch(rpmnet_jax.init_params(jax.random.PRNGKey(0))))
+    return str(path)
+
+
+def _shape(seed=0, n=3000, label=36):
+    pts = synthetic.sample_shape(np.random.default_rng(seed), label, n)
+    return pts[:, :3].astype(np.float64), pts[:, 3:].astype(np.float64)
+
+
+@pytest.mark.parametrize("ext", [".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".npz"])
+@pytest.mark.parametrize("with_normals", [True, False])
+def test_cloud_files_round_trip(tmp_path, ext, with_normals):
+    pts, nrm = _shape(n=500)
+    pts = pts * 100 + 7
+    path = str(tmp_path / f"cloud{ext}")
+    cloud_io.write_cloud(path, pts, nrm if with_normals else None)
+    got, got_n = cloud_io.read_cloud(path)
+    single = ext in (".ply", ".pcd")
+    np.testing.assert_allclose(got, pts, rtol=1e-6 if single else 1e-7, atol=1e-4 if single else 1e-5)
+    if with_normals:
+        np.testing.assert_allclose(got_n, nrm, atol=1e-6)
+    else:
+        assert got_n is None
+
+
+def test_ascii_pcd_and_ascii_ply(tmp_path):
+    pts, _ = _shape(n=50)
+    pcd = tmp_path / "a.pcd"
+    pcd.write_text("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+                   f"WIDTH {len(pts)}\nHEIGHT 1\nPOINTS {len(pts)}\nDATA ascii\n"
+                   + "\n".join(f"{x} {y} {z} 0" for x, y, z in pts))
+    np.testing.assert_allclose(cloud_io.read_cloud(str(pcd))[0], pts, atol=1e-6)
+    from plyfile import PlyData, PlyElement
+    table = np.array([tuple(p) for p in pts], dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    PlyData([PlyElement.describe(table, "vertex")], text=True).write(str(tmp_path / "a.ply"))
+    np.testing.assert_allclose(cloud_io.read_cloud(str(tmp_path / "a.ply"))[0], pts, atol=1e-6)
+
+
+def test_transform_files_parse_back(tmp_path):
+    t = np.eye(4)
+    t[:3, :3] = Rotation.from_euler("xyz", [10, -20, 30], degrees=True).as_matrix()
+    t[:3, 3] = [1.5, -2, 1e3]
+    for name in ("t.txt", "t.json"):
+        cloud_io.write_transform(str(tmp_path / name), t)
+        np.testing.assert_allclose(cloud_io.read_transform(str(tmp_path / name)), t, rtol=1e-9)
+    np.testing.assert_allclose(np.loadtxt(tmp_path / "t.txt"), t, rtol=1e-9)
+
+
+def test_estimated_normals_agree_with_analytic():
+    for label in (0, 8, 16, 24):  # superquadric, box, cylinder, torus families
+        pts, nrm = _shape(seed=label, n=4000, label=label)
+        est = normals.estimate_normals(pts, k=16)
+        cos = np.abs(np.sum(est * nrm, axis=1))
+        assert np.median(np.degrees(np.arccos(np.clip(cos, 0, 1)))) < 5.0, label
+        np.testing.assert_allclose(np.linalg.norm(est, axis=1), 1.0, atol=1e-9)
+    pts, nrm = _shape(seed=1, n=4000, label=0)  # convex: the outward orientation is the analytic sign
+    assert np.mean(np.sum(normals.estimate_normals(pts) * nrm, axis=1) > 0) > 0.95
+
+
+def test_transform_is_rigid_and_in_callers_units(random_weights):
+    """A similarity applied to both inputs conjugates the answer: rotation unchanged, translation mapped."""
+    src, src_n = _shape(seed=2, n=800)
+    ref = src @ Rotation.from_euler("z", 30, degrees=True).as_matrix().T + 0.1
+    a = rpmnet_jax.align(src, ref, src_n, None, checkpoint=random_weights, num_points=256, num_iters=2)
+    k, off = 250.0, np.array([1e3, -50.0, 7.0])
+    b = rpmnet_jax.align(src * k + off, ref * k + off, src_n, None, checkpoint=random_weights, num_points=256,
+                         num_iters=2)
+    rot = a.transform[:3, :3]
+    np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-5)
+    assert abs(np.linalg.det(rot) - 1) < 1e-5
+    np.testing.assert_allclose(b.transform[:3, :3], rot, atol=2e-4)
+    np.testing.assert_allclose(b.transform[:3, 3], k * a.transform[:3, 3] + off - rot @ off, atol=0.05 * k * 1e-2 * 4)
+    np.testing.assert_allclose(b.aligned, (src * k + off) @ b.transform[:3, :3].T + b.transform[:3, 3], atol=1e-6)
+    assert b.transforms.shape == (2, 4, 4) and 0.0 <= b.confidence <= 1.0
+
+
+def _write(tmp_path, name, pts, nrm=None):
+    path = str(tmp_path / name)
+    cloud_io.write_cloud(path, pts, nrm)
+    return path
+
+
+def _raw(path, content: bytes) -> str:
+    path.write_bytes(content)
+    return str(path)
+
+
+def _run_cli(args, capsys):
+    code = cli.main(args)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.mark.parametrize("case", ["unknown_ext", "missing", "empty", "too_few", "collinear", "coincident",
+                                  "zero_normals", "all_nan", "garbage"])
+def test_bad_inputs_fail_cleanly(tmp_path, capsys, random_weights, case):
+    good = _write(tmp_path, "good.npy", *_shape(n=300))
+    pts = np.zeros((10, 3))
+    bad = {
+        "unknown_ext": lambda: str(tmp_path / "cloud.obj"),
+        "missing": lambda: str(tmp_path / "nope.ply"),
+        "empty": lambda: _raw(tmp_path / "e.xyz", b""),
+        "too_few": lambda: _write(tmp_path, "f.npy", np.random.rand(2, 3)),
+        "collinear": lambda: _write(tmp_path, "c.npy", np.outer(np.arange(50.0), [1.0, 2.0, 3.0])),
+        "coincident": lambda: _write(tmp_path, "s.npy", pts + 1.0),
+        "zero_normals": lambda: _write(tmp_path, "z.npy", np.random.rand(50, 3), np.zeros((50, 3))),
+        "all_nan": lambda: _write(tmp_path, "n.npy", np.full((50, 3), np.nan)),
+        "garbage": lambda: _raw(tmp_path / "g.ply", b"not a ply"),
+    }[case]()
+    out_t = tmp_path / "T.txt"
+    code, _, err = _run_cli([bad, good, "--checkpoint", random_weights, "--out-transform", str(out_t)], capsys)
+    assert code == 2
+    assert err.startswith("rpmnet-register: error:") and len(err.strip().splitlines()) == 1, err
+    assert "Traceback" not in err and not out_t.exists()
+
+
+def test_nan_rows_are_dropped_with_a_warning(tmp_path, capsys, random_weights):
+    pts, nrm = _shape(n=400)
+    pts[:5] = np.nan
+    src = _write(tmp_path, "src.npy", pts, nrm)
+    ref = _write(tmp_path, "ref.npy", *_shape(seed=3, n=400))
+    code, out, err = _run_cli([src, ref, "--checkpoint", random_weights, "--num-points", "128", "--iters", "1"],
+                              capsys)
+    assert code == 0 and "dropped 5 points" in err and "confidence" in out
+
+
+def test_missing_checkpoint_is_an_error(tmp_path, capsys):
+    src = _write(tmp_path, "src.npy", *_shape(n=100))
+    code, _, err = _run_cli([src, src, "--checkpoint", str(tmp_path / "none.npz")], capsys)
+    assert code == 2 and "not found" in err
+
+
+@pytest.mark.skipif(not pretrained.has_default(), reason="no shipped model in this checkout")
+@pytest.mark.parametrize("ext", [".ply", ".pcd", ".xyz", ".npy"])
+def test_cli_recovers_a_known_transform_with_the_shipped_model(tmp_path, capsys, ext):
+    """Partial, noisy pair in non-unit scale and offset, written to disk; the CLI recovers the motion."""
+    rng = np.random.default_rng(7)
+    pts, nrm = _shape(seed=11, n=6000, label=36)
+    keep_src = pts @ np.array([1.0, 0.3, 0.1]) > np.quantile(pts @ np.array([1.0, 0.3, 0.1]), 0.25)
+    keep_ref = pts @ np.array([-0.2, 1.0, 0.4]) > np.quantile(pts @ np.array([-0.2, 1.0, 0.4]), 0.25)
+    scale, off = 40.0, np.array([120.0, -30.0, 8.0])
+    rot = Rotation.from_euler("xyz", [25, -30, 20], degrees=True).as_matrix()
+    trans = np.array([0.2, -0.1, 0.15]) * scale
+    src = pts[keep_src] * scale + off + rng.normal(scale=0.005 * scale, size=(keep_src.sum(), 3))
+    ref_world = pts[keep_ref] * scale + off + rng.normal(scale=0.005 * scale, size=(keep_ref.sum(), 3))
+    ref = ref_world @ rot.T + trans  # ref = G(world); src lives in world → G maps src onto ref
+    gt = np.eye(4)
+    gt[:3, :3], gt[:3, 3] = rot, trans
+    src_path = _write(tmp_path, "src" + ext, src, nrm[keep_src])
+    ref_path = _write(tmp_path, "ref" + ext, ref)  # no normals: estimated
+    out_t, out_a = tmp_path / "T.json", tmp_path / ("aligned" + ext)
+    code, out, err = _run_cli([src_path, ref_path, "--out-transform", str(out_t), "--out-aligned", str(out_a)],
+                              capsys)
+    assert code == 0, err
+    got = cloud_io.read_transform(str(out_t))
+    err_r = np.degrees(np.arccos(np.clip((np.trace(got[:3, :3].T @ rot) - 1) / 2, -1, 1)))
+    size = np.linalg.norm(src.max(0) - src.min(0))
+    err_t = np.linalg.norm(got[:3, 3] - trans) / size
+    print(json.dumps({"ext": ext, "rot_err_deg": float(err_r), "trans_err_rel": float(err_t)}))
+    assert err_r < 5.0 and err_t < 0.05, (err_r, err_t)
+    assert os.path.exists(out_a) and cloud_io.read_cloud(str(out_a))[0].shape == src.shape
