@@ -108,3 +108,18 @@ def test_eval_cli_errors(tiny_root, tmp_path, capsys):
                         "--num-points", str(NUM_POINTS), "--output", str(tmp_path / "o")])
     assert rc == 2
     assert "--transforms-file" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("method", ["icp", "fgr"])
+def test_open3d_baselines_register_easy_pair(method):
+    why = baselines.open3d_available()
+    if why:
+        pytest.skip(why)
+    src = synthetic.sample_shape(np.random.default_rng(4), 4, 512)
+    rot = Rotation.from_euler("xyz", [10, -5, 8], degrees=True).as_matrix()
+    trans = np.array([0.05, 0.0, 0.02])
+    ref = np.concatenate([src[:, :3] @ rot.T + trans, src[:, 3:] @ rot.T], axis=1)
+    pred = evaluation.method_fn(method)(src[None], ref[None])
+    assert pred.shape == (1, 1, 3, 4)
+    gt = np.concatenate([rot, trans[:, None]], axis=1)[None]
+    assert metrics.registration_metrics(pred[:, -1], gt, src[None], ref[None], src[None])["err_r_deg"][0] < 1.0
