@@ -1,8 +1,10 @@
 """Register your own point clouds: any units, any size, normals optional.
 
-Both clouds are centred and scaled by one common similarity into the unit sphere the model was trained
-on, downsampled, registered, and the result is mapped back, so the returned 4×4 transform is rigid and in
-the caller's units.
+Each cloud is centred on its own centroid (or both on their common one, ``centering="common"``) and both
+are scaled by one common factor into the unit sphere the model was trained on, downsampled, registered,
+and the result is mapped back, so the returned 4×4 transform is rigid and in the caller's units. Separate
+centring (the default) keeps the residual translation inside the range the model was trained on (0.5 of
+the unit sphere per axis) even when the scans sit far apart in the caller's frame.
 """
 
 from __future__ import annotations
@@ -94,12 +96,13 @@ def _register_fn(cfg, num_iters):
 
 def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
           num_points: int = 1024, num_iters: int = 5, sampling: str = "random", seed: int = 0,
-          reestimate_normals: bool = False, cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
+          reestimate_normals: bool = False, centering: str = "separate", cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
     """Rigidly aligns ``src_points (N, 3)`` onto ``ref_points (M, 3)``.
 
     Normals (``(N, 3)``, any length > 0) are estimated when missing or when ``reestimate_normals``.
     ``checkpoint``: orbax dir, ``.npz`` or official ``.pth``; default the shipped model (or pass
-    ``params``). ``sampling``: ``random`` or ``fps`` down to ``num_points`` per cloud.
+    ``params``). ``sampling``: ``random`` or ``fps`` down to ``num_points`` per cloud. ``centering``:
+    ``separate`` (each cloud on its centroid) or ``common`` (both on their joint centroid).
     """
     if num_points < 3:
         raise ValueError(f"num_points must be >= 3, got {num_points}")
@@ -107,15 +110,19 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
         raise ValueError(f"num_iters must be >= 1, got {num_iters}")
     if sampling not in ("random", "fps"):
         raise ValueError(f"sampling must be 'random' or 'fps', got {sampling!r}")
+    if centering not in ("separate", "common"):
+        raise ValueError(f"centering must be 'separate' or 'common', got {centering!r}")
     src, src_n = _clean("source", src_points, None if reestimate_normals else src_normals)
     ref, ref_n = _clean("reference", ref_points, None if reestimate_normals else ref_normals)
     params = params if params is not None else pretrained.load_params(checkpoint)
     cfg = cfg or config_lib.RPMNetConfig()
 
-    both = np.concatenate([src, ref])
-    centre = both.mean(axis=0)
-    scale = float(np.max(np.linalg.norm(both - centre, axis=1)))
-    src_u, ref_u = (src - centre) / scale, (ref - centre) / scale
+    if centering == "separate":
+        c_src, c_ref = src.mean(axis=0), ref.mean(axis=0)
+    else:
+        c_src = c_ref = np.concatenate([src, ref]).mean(axis=0)
+    scale = float(max(np.max(np.linalg.norm(src - c_src, axis=1)), np.max(np.linalg.norm(ref - c_ref, axis=1))))
+    src_u, ref_u = (src - c_src) / scale, (ref - c_ref) / scale
     rng = np.random.default_rng(seed)
     pick = (lambda x: _fps(x, min(num_points, len(x)), rng)) if sampling == "fps" else (
         lambda x: _downsample(rng, len(x), num_points, "random"))
@@ -128,7 +135,8 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     reg = _register_fn(cfg, int(num_iters))(params, src6, ref6)
     t_unit = np.asarray(reg.transforms[:, 0], np.float64)  # (I, 3, 4)
     rot = t_unit[:, :, :3]
-    trans = scale * t_unit[:, :, 3] + centre - np.einsum("iab,b->ia", rot, centre)
+    # ref = c_ref + s * (R (src - c_src) / s + t_unit) = R src + (s t_unit + c_ref - R c_src)
+    trans = scale * t_unit[:, :, 3] + c_ref - np.einsum("iab,b->ia", rot, c_src)
     transforms = _to_4x4(np.concatenate([rot, trans[:, :, None]], axis=2))
     final = transforms[-1]
     aligned = src @ final[:3, :3].T + final[:3, 3]

@@ -26,6 +26,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--iters", type=int, default=5, help="registration iterations (default 5)")
     p.add_argument("--sampling", choices=("random", "fps"), default="random", help="downsampling method")
     p.add_argument("--seed", type=int, default=0, help="seed of the downsampling")
+    p.add_argument("--centering", choices=("separate", "common"), default="separate",
+                   help="centre each cloud on its own centroid (default) or both on their joint centroid")
     p.add_argument("--estimate-normals", action="store_true", help="re-estimate normals even if the files have them")
     return p
 
@@ -74,7 +76,7 @@ def main(argv=None) -> int:
             warnings.simplefilter("always")
             result = align_lib.align(src, ref, src_n, ref_n, checkpoint=args.checkpoint, num_points=args.num_points,
                                      num_iters=args.iters, sampling=args.sampling, seed=args.seed,
-                                     reestimate_normals=args.estimate_normals)
+                                     centering=args.centering, reestimate_normals=args.estimate_normals)
         seconds = time.time() - t0
     except (ValueError, FileNotFoundError) as e:
         print(f"rpmnet-register: error: {e}", file=sys.stderr)

@@ -74,14 +74,16 @@ def test_estimated_normals_agree_with_analytic():
     assert np.mean(np.sum(normals.estimate_normals(pts) * nrm, axis=1) > 0) > 0.95
 
 
-def test_transform_is_rigid_and_in_callers_units(random_weights):
+@pytest.mark.parametrize("centering", ["separate", "common"])
+def test_transform_is_rigid_and_in_callers_units(random_weights, centering):
     """A similarity applied to both inputs conjugates the answer: rotation unchanged, translation mapped."""
     src, src_n = _shape(seed=2, n=800)
     ref = src @ Rotation.from_euler("z", 30, degrees=True).as_matrix().T + 0.1
-    a = rpmnet_jax.align(src, ref, src_n, None, checkpoint=random_weights, num_points=256, num_iters=2)
+    a = rpmnet_jax.align(src, ref, src_n, None, checkpoint=random_weights, num_points=256, num_iters=2,
+                         centering=centering)
     k, off = 250.0, np.array([1e3, -50.0, 7.0])
     b = rpmnet_jax.align(src * k + off, ref * k + off, src_n, None, checkpoint=random_weights, num_points=256,
-                         num_iters=2)
+                         num_iters=2, centering=centering)
     rot = a.transform[:3, :3]
     np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-5)
     assert abs(np.linalg.det(rot) - 1) < 1e-5
@@ -89,6 +91,19 @@ def test_transform_is_rigid_and_in_callers_units(random_weights):
     np.testing.assert_allclose(b.transform[:3, 3], k * a.transform[:3, 3] + off - rot @ off, atol=0.05 * k * 1e-2 * 4)
     np.testing.assert_allclose(b.aligned, (src * k + off) @ b.transform[:3, :3].T + b.transform[:3, 3], atol=1e-6)
     assert b.transforms.shape == (2, 4, 4) and 0.0 <= b.confidence <= 1.0
+
+
+def test_separate_centering_follows_a_shift_of_the_reference(random_weights):
+    """Moving the reference by d moves the answer by d (the model sees the same centred clouds)."""
+    src, src_n = _shape(seed=4, n=600)
+    ref, ref_n = _shape(seed=5, n=600)
+    d = np.array([300.0, -20.0, 45.0])
+    a = rpmnet_jax.align(src, ref, src_n, ref_n, checkpoint=random_weights, num_points=200, num_iters=2)
+    b = rpmnet_jax.align(src, ref + d, src_n, ref_n, checkpoint=random_weights, num_points=200, num_iters=2)
+    np.testing.assert_allclose(b.transform[:3, :3], a.transform[:3, :3], atol=1e-6)
+    np.testing.assert_allclose(b.transform[:3, 3], a.transform[:3, 3] + d, atol=1e-4)
+    with pytest.raises(ValueError, match="centering"):
+        rpmnet_jax.align(src, ref, src_n, ref_n, checkpoint=random_weights, centering="median")
 
 
 def _write(tmp_path, name, pts, nrm=None):
