@@ -94,29 +94,40 @@ def _register_fn(cfg, num_iters):
     return _JITTED[key]
 
 
-def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
-          num_points: int = 1024, num_iters: int = 5, sampling: str = "random", seed: int = 0,
-          reestimate_normals: bool = False, centering: str = "separate", cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
-    """Rigidly aligns ``src_points (N, 3)`` onto ``ref_points (M, 3)``.
+class PreparedPair(NamedTuple):
+    """A pair normalised for the model, and how to map a unit-sphere answer back to the caller's units."""
 
-    Normals (``(N, 3)``, any length > 0) are estimated when missing or when ``reestimate_normals``.
-    ``checkpoint``: orbax dir, ``.npz`` or official ``.pth``; default the shipped model (or pass
-    ``params``). ``sampling``: ``random`` or ``fps`` down to ``num_points`` per cloud. ``centering``:
-    ``separate`` (each cloud on its centroid) or ``common`` (both on their joint centroid).
+    src6: np.ndarray  # (1, J, 6) float32: centred, scaled, downsampled source xyz + unit normals
+    ref6: np.ndarray  # (1, K, 6) float32
+    src: np.ndarray  # (N, 3) the cleaned full source, caller's units
+    c_src: np.ndarray  # (3,) source centre
+    c_ref: np.ndarray  # (3,) reference centre
+    scale: float  # common scale: unit-sphere length = caller's length / scale
+
+    def to_callers_units(self, t_unit) -> np.ndarray:
+        """``(..., 3, 4)`` transforms between the normalised clouds → ``(..., 4, 4)`` in the caller's units."""
+        t_unit = np.asarray(t_unit, np.float64)
+        rot = t_unit[..., :3]
+        # ref = c_ref + s * (R (src - c_src) / s + t) = R src + (s t + c_ref - R c_src)
+        trans = self.scale * t_unit[..., 3] + self.c_ref - rot @ self.c_src
+        return _to_4x4(np.concatenate([rot, trans[..., None]], axis=-1))
+
+
+def prepare_pair(src_points, ref_points, src_normals=None, ref_normals=None, *, num_points: int = 1024,
+                 sampling: str = "random", seed: int = 0, reestimate_normals: bool = False,
+                 centering: str = "separate") -> PreparedPair:
+    """Cleans, centres, scales into the unit sphere, downsamples and (where missing) estimates normals.
+
+    ``src_points (N, 3)``, ``ref_points (M, 3)``; see :func:`align` for the options.
     """
     if num_points < 3:
         raise ValueError(f"num_points must be >= 3, got {num_points}")
-    if num_iters < 1:
-        raise ValueError(f"num_iters must be >= 1, got {num_iters}")
     if sampling not in ("random", "fps"):
         raise ValueError(f"sampling must be 'random' or 'fps', got {sampling!r}")
     if centering not in ("separate", "common"):
         raise ValueError(f"centering must be 'separate' or 'common', got {centering!r}")
     src, src_n = _clean("source", src_points, None if reestimate_normals else src_normals)
     ref, ref_n = _clean("reference", ref_points, None if reestimate_normals else ref_normals)
-    params = params if params is not None else pretrained.load_params(checkpoint)
-    cfg = cfg or config_lib.RPMNetConfig()
-
     if centering == "separate":
         c_src, c_ref = src.mean(axis=0), ref.mean(axis=0)
     else:
@@ -132,14 +143,30 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     n_ref = ref_n[i_ref] if ref_n is not None else normals_lib.estimate_normals(ref_s)
     src6 = np.concatenate([src_s, n_src], 1)[None].astype(np.float32)
     ref6 = np.concatenate([ref_s, n_ref], 1)[None].astype(np.float32)
-    reg = _register_fn(cfg, int(num_iters))(params, src6, ref6)
-    t_unit = np.asarray(reg.transforms[:, 0], np.float64)  # (I, 3, 4)
-    rot = t_unit[:, :, :3]
-    # ref = c_ref + s * (R (src - c_src) / s + t_unit) = R src + (s t_unit + c_ref - R c_src)
-    trans = scale * t_unit[:, :, 3] + c_ref - np.einsum("iab,b->ia", rot, c_src)
-    transforms = _to_4x4(np.concatenate([rot, trans[:, :, None]], axis=2))
+    return PreparedPair(src6, ref6, src, c_src, c_ref, scale)
+
+
+def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
+          num_points: int = 1024, num_iters: int = 5, sampling: str = "random", seed: int = 0,
+          reestimate_normals: bool = False, centering: str = "separate",
+          cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
+    """Rigidly aligns ``src_points (N, 3)`` onto ``ref_points (M, 3)``.
+
+    Normals (``(N, 3)``, any length > 0) are estimated when missing or when ``reestimate_normals``.
+    ``checkpoint``: orbax dir, ``.npz`` or official ``.pth``; default the shipped model (or pass
+    ``params``). ``sampling``: ``random`` or ``fps`` down to ``num_points`` per cloud. ``centering``:
+    ``separate`` (each cloud on its centroid) or ``common`` (both on their joint centroid).
+    """
+    if num_iters < 1:
+        raise ValueError(f"num_iters must be >= 1, got {num_iters}")
+    pair = prepare_pair(src_points, ref_points, src_normals, ref_normals, num_points=num_points,
+                        sampling=sampling, seed=seed, reestimate_normals=reestimate_normals, centering=centering)
+    params = params if params is not None else pretrained.load_params(checkpoint)
+    cfg = cfg or config_lib.RPMNetConfig()
+    reg = _register_fn(cfg, int(num_iters))(params, pair.src6, pair.ref6)
+    transforms = pair.to_callers_units(np.asarray(reg.transforms[:, 0]))  # (I, 4, 4)
     final = transforms[-1]
-    aligned = src @ final[:3, :3].T + final[:3, 3]
+    aligned = pair.src @ final[:3, :3].T + final[:3, 3]
     perm = np.asarray(reg.perm_matrices[-1, 0])
     confidence = float(0.5 * (perm.sum(axis=1).mean() + perm.sum(axis=0).mean()))
-    return Alignment(final, aligned, transforms, confidence, (len(i_src), len(i_ref)))
+    return Alignment(final, aligned, transforms, confidence, (pair.src6.shape[1], pair.ref6.shape[1]))

@@ -56,7 +56,9 @@ def _read_ply(path):
         from plyfile import PlyData
     except ImportError:
         raise CloudError("reading PLY needs plyfile: pip install 'rpmnet_jax[io]'") from None
-    vertex = PlyData.read(path)["vertex"].data
+    with warnings.catch_warnings():  # ASCII files with an empty face list make NumPy warn
+        warnings.filterwarnings("ignore", message="loadtxt: input contained no data")
+        vertex = PlyData.read(path)["vertex"].data
     names = vertex.dtype.names
     cols = [vertex[c] for c in ("x", "y", "z")]
     if all(c in names for c in ("nx", "ny", "nz")):
