@@ -191,18 +191,22 @@ def run_worker(a, impl: str, task: str, points: int, batch: int, extra=()) -> di
     cmd = [sys.executable, os.path.abspath(__file__), "--worker", impl, "--task", task, "--torch-src", a.torch_src,
            "--points", str(points), "--batch", str(batch), "--threads", str(a.threads),
            "--repeats", str(a.repeats if task == "infer" else a.train_repeats), *extra]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    env = dict(os.environ)
+    if a.malloc == "hugetlb":  # the same glibc setting for both frameworks (see rpmnet_jax/runtime.py)
+        from rpmnet_jax import runtime
+        env["GLIBC_TUNABLES"] = runtime.TUNABLES
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if proc.returncode != 0:
         return {"impl": impl, "task": task, "points": points, "batch": batch,
                 "error": (proc.stderr.strip().splitlines() or ["failed"])[-1]}
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return dict(json.loads(proc.stdout.strip().splitlines()[-1]), malloc=a.malloc)
 
 
 def write_table(path: str, records: list, meta: dict) -> None:
     """Markdown table: one row per (task, variant, points, batch) with torch and jax side by side."""
     torch_rows = {(r["task"], r["points"], r["batch"]): r for r in records
                   if r.get("impl") == "torch" and "seconds" in r}
-    lines = [f"Machine: {meta['machine']}; {meta['threads']} threads per framework; "
+    lines = [f"Machine: {meta['machine']}; {meta['threads']} threads per framework; malloc {meta['malloc']}; "
              f"jax {meta.get('jax')}, torch {meta.get('torch')}. Seconds per pair (infer) or per step (train).", "",
              "| task | points | batch | torch s | torch peak MB | jax s | jax peak MB | speed-up |",
              "|---|---|---|---|---|---|---|---|"]
@@ -249,6 +253,9 @@ def main(argv=None) -> int:
     p.add_argument("--tasks", default="infer,train", help="comma-separated subset of infer,train")
     p.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                    else os.cpu_count(), help="CPUs and threads given to each framework (default: all)")
+    p.add_argument("--malloc", choices=("default", "hugetlb"), default="default",
+                   help="glibc malloc setting for both frameworks: default, or transparent huge pages (what the "
+                        "rpmnet_jax CLIs use)")
     p.add_argument("--repeats", type=int, default=5, help="timed repeats per inference measurement")
     p.add_argument("--train-repeats", type=int, default=3, help="timed repeats per training measurement")
     p.add_argument("--out-md", default=os.path.join(HERE, "results_compare_torch.md"))
@@ -270,7 +277,7 @@ def main(argv=None) -> int:
 
     import platform
     tasks = [t for t in a.tasks.split(",") if t]
-    meta = {"machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs", "threads": a.threads}
+    meta = {"machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs", "threads": a.threads, "malloc": a.malloc}
     records = [run_worker(a, "check", "infer", 1024, 1)]
     records[0]["task"] = "check"
     print(json.dumps(records[0]), flush=True)
