@@ -252,6 +252,21 @@ class ModelNet40:
         return self.get(int(idx))
 
 
+class Head:
+    """The first ``n`` samples of a dataset (a view)."""
+
+    def __init__(self, dataset, n: int):
+        self.dataset, self.n = dataset, min(int(n), len(dataset))
+
+    def __len__(self):
+        return self.n
+
+    def __getitem__(self, i):
+        if not 0 <= i < self.n:
+            raise IndexError(f"index {i} out of range for {self.n} samples")
+        return self.dataset[i]
+
+
 class Concat:
     """Datasets one after another (e.g. real ModelNet40 shapes next to synthetic ones); same ``get`` API."""
 

@@ -11,7 +11,7 @@ import time
 import jax
 import numpy as np
 
-from rpmnet_jax import baselines, loader, metrics, registration
+from rpmnet_jax import baselines, data, loader, metrics, registration
 from rpmnet_jax import config as config_lib
 
 METHODS = ("rpmnet", "icp", "fgr", "rpm", "identity")
@@ -48,7 +48,7 @@ def run_method(fn, dataset, batch_size: int, limit: int | None = None, progress:
     n = len(dataset) if limit is None else min(limit, len(dataset))
     per_pair: dict = {"idx": [], "label": []}
     all_t, chamfer_iters, seconds, timed = [], [], 0.0, 0
-    subset = _Take(dataset, n)
+    subset = data.Head(dataset, n)
     batches = loader.batches(subset, batch_size, keys=("points_src", "points_ref", "transform_gt", "points_raw",
                                                        "label", "idx"))
     for i, batch in enumerate(tqdm(batches, total=math.ceil(n / batch_size), desc=desc, disable=not progress)):
@@ -70,17 +70,6 @@ def run_method(fn, dataset, batch_size: int, limit: int | None = None, progress:
             for it in range(transforms.shape[1])], axis=1))
     per_pair = {k: np.concatenate(v) for k, v in per_pair.items()}
     return per_pair, np.concatenate(all_t), np.concatenate(chamfer_iters), seconds / max(timed, 1)
-
-
-class _Take:
-    def __init__(self, ds, n):
-        self.ds, self.n = ds, n
-
-    def __len__(self):
-        return self.n
-
-    def __getitem__(self, i):
-        return self.ds[i]
 
 
 def format_table(rows: dict) -> str:

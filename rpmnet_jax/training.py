@@ -222,7 +222,7 @@ def validate(params, val_set, cfg: TrainConfig, eval_fn=None, progress: bool = T
     """Mean official metrics of ``cfg.model.num_reg_iters``-iteration registration on ``val_set``."""
     eval_fn = eval_fn or make_eval_fn(cfg)
     n = len(val_set) if cfg.val_limit is None else min(cfg.val_limit, len(val_set))
-    subset = _Subset(val_set, n)
+    subset = data.Head(val_set, n)
     per_pair: dict = {}
     from tqdm.auto import tqdm
     for batch in tqdm(loader.batches(subset, cfg.resolved_batch_size), desc="validate", leave=False,
@@ -233,17 +233,6 @@ def validate(params, val_set, cfg: TrainConfig, eval_fn=None, progress: bool = T
         for k, v in m.items():
             per_pair.setdefault(k, []).append(v)
     return metrics.summarize_metrics({k: np.concatenate(v) for k, v in per_pair.items()})
-
-
-class _Subset:
-    def __init__(self, ds, n):
-        self.ds, self.n = ds, n
-
-    def __len__(self):
-        return self.n
-
-    def __getitem__(self, i):
-        return self.ds[i]
 
 
 def _check_resume_config(cfg: TrainConfig) -> None:
