@@ -39,6 +39,12 @@ def _group_stats(x, groups: int, eps: float):
     rows = x.reshape(b, -1, c)
     mean_c = jnp.mean(rows, axis=1)
     var_c = jnp.mean(jnp.square(rows - mean_c[:, None, :]), axis=1)
+    return pool_group_stats(mean_c, var_c, groups, eps)
+
+
+def pool_group_stats(mean_c, var_c, groups: int, eps: float):
+    """Group mean and 1/std ``(B, G)`` from per-channel means and variances ``(B, C)``."""
+    b = mean_c.shape[0]
     mean_c = mean_c.reshape(b, groups, -1)
     var_c = var_c.reshape(b, groups, -1)
     mean_g = jnp.mean(mean_c, axis=-1)

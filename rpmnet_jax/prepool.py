@@ -39,12 +39,53 @@ def _normalise(z, mean_g, inv_g, groups):
     return (z - model._per_channel(mean_g, c, z.ndim)) * model._per_channel(inv_g, c, z.ndim)
 
 
-def mlp_max_reference(x, layers: Sequence[Layer], groups: int = 8, eps: float = model._GN_EPS):
-    """The same function differentiated by JAX (float32 gradients match the official ones bit for bit)."""
+def mlp_max_layerwise(x, layers: Sequence[Layer], groups: int = 8, eps: float = model._GN_EPS):
+    """The per-layer formulation in torch's arithmetic; differentiated by JAX (float32 gradients match the
+    official ones to 1e-4)."""
     h = x
     for layer in layers:
         h = jax.nn.relu(model.group_norm(h @ layer.kernel + layer.bias, layer.scale, layer.shift, groups, eps))
     return jnp.max(h, axis=2)
+
+
+def _inference_forward(x, layers: Sequence[Layer], groups: int, eps: float):
+    """Forward pass with one memory pass less per layer, used whenever no gradient is taken.
+
+    The bias is never added to the ``(B, N, k, C)`` product on its own: GroupNorm statistics of
+    ``z = u + b`` follow from those of ``u = h W`` (channel means shift by ``b``, variances do not), and
+    ``b`` is folded into the per-channel shift of the activation. Same values as
+    :func:`mlp_max_layerwise` to float32 rounding (1e-6).
+    """
+    h = x
+    for i, layer in enumerate(layers):
+        u = h @ layer.kernel
+        b, c = u.shape[0], u.shape[-1]
+        rows = u.reshape(b, -1, c)
+        mean_u = jnp.mean(rows, axis=1)
+        var_c = jnp.mean(jnp.square(rows - mean_u[:, None, :]), axis=1)
+        mean_g, inv_g = model.pool_group_stats(mean_u + layer.bias, var_c, groups, eps)
+        a = model._per_channel(inv_g, c, u.ndim) * layer.scale
+        h = jax.nn.relu(u * a + (layer.bias * a + layer.shift - model._per_channel(mean_g, c, u.ndim) * a))
+    return jnp.max(h, axis=2)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
+def mlp_max_reference(x, layers: Sequence[Layer], groups: int = 8, eps: float = model._GN_EPS):
+    """:func:`mlp_max_layerwise` with its JAX-derived gradients; evaluated without a gradient it runs the
+    leaner :func:`_inference_forward`."""
+    return _inference_forward(x, layers, groups, eps)
+
+
+def _reference_fwd(x, layers, groups, eps):
+    out, vjp = jax.vjp(lambda x_, layers_: mlp_max_layerwise(x_, layers_, groups, eps), x, tuple(layers))
+    return out, vjp
+
+
+def _reference_bwd(groups, eps, vjp, d_out):
+    return vjp(d_out)
+
+
+mlp_max_reference.defvjp(_reference_fwd, _reference_bwd)
 
 
 def _activate(z, mean_g, inv_g, layer: Layer):
@@ -66,8 +107,10 @@ def _forward(x, layers, groups, eps):
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
 def mlp_max(x, layers: Sequence[Layer], groups: int = 8, eps: float = model._GN_EPS):
-    """``x (B, N, k, C_in)`` → ``max_k relu(GN(... relu(GN(x W1 + b1)) ...)) (B, N, C_out)``."""
-    return jnp.max(_forward(x, layers, groups, eps)[0], axis=2)
+    """``x (B, N, k, C_in)`` → ``max_k relu(GN(... relu(GN(x W1 + b1)) ...)) (B, N, C_out)``.
+
+    Without a gradient this runs :func:`_inference_forward`."""
+    return _inference_forward(x, layers, groups, eps)
 
 
 def _mlp_max_fwd(x, layers, groups, eps):

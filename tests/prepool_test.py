@@ -28,12 +28,28 @@ def test_values_and_gradients_match_autodiff_in_float64():
         x = jax.random.normal(jax.random.PRNGKey(0), (2, 20, 16, 10), jnp.float64)
         layers = _layers(jax.random.PRNGKey(1), [(10, 16), (16, 16), (16, 32)], jnp.float64)
         w = jax.random.normal(jax.random.PRNGKey(2), (2, 20, 32), jnp.float64)
-        np.testing.assert_allclose(prepool.mlp_max(x, layers, 8), prepool.mlp_max_reference(x, layers, 8),
-                                   rtol=1e-12, atol=1e-12)
+        exact = prepool.mlp_max_layerwise(x, layers, 8)
+        for pool in (prepool.mlp_max, prepool.mlp_max_reference):  # both run the inference forward
+            np.testing.assert_allclose(pool(x, layers, 8), exact, rtol=1e-12, atol=1e-12)
         fused = jax.grad(_loss, argnums=(1, 2))(prepool.mlp_max, x, layers, w)
-        auto = jax.grad(_loss, argnums=(1, 2))(prepool.mlp_max_reference, x, layers, w)
+        auto = jax.grad(_loss, argnums=(1, 2))(prepool.mlp_max_layerwise, x, layers, w)
         for a, b in zip(jax.tree.leaves(fused), jax.tree.leaves(auto)):
             np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+
+
+def test_inference_forward_matches_layerwise_in_float32_and_keeps_its_gradients():
+    x = jax.random.normal(jax.random.PRNGKey(3), (2, 64, 32, 10))
+    layers = _layers(jax.random.PRNGKey(4), [(10, 96), (96, 96), (96, 192)])
+    layers = (layers[0], layers[1], layers[2]._replace(scale=-layers[2].scale))  # a negative GroupNorm scale
+    exact = prepool.mlp_max_layerwise(x, layers, 8)
+    assert float(jnp.max(jnp.abs(exact))) > 1.0
+    for pool in (prepool.mlp_max, prepool.mlp_max_reference):
+        np.testing.assert_allclose(jax.jit(pool, static_argnums=2)(x, layers, 8), exact, rtol=2e-5, atol=2e-5)
+    w = jax.random.normal(jax.random.PRNGKey(5), exact.shape)
+    wrapped = jax.jit(jax.grad(_loss, argnums=(1, 2)), static_argnums=0)(prepool.mlp_max_reference, x, layers, w)
+    plain = jax.jit(jax.grad(_loss, argnums=(1, 2)), static_argnums=0)(prepool.mlp_max_layerwise, x, layers, w)
+    for a, b in zip(jax.tree.leaves(wrapped), jax.tree.leaves(plain)):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_gradient_is_finite_when_a_channel_is_dead():
