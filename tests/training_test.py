@@ -122,6 +122,7 @@ def _run_with_devices(n, workdir):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # two subprocesses that each compile training and validation (~100 s)
 def test_four_devices_match_one(tmp_path):
     one = _run_with_devices(1, tmp_path / "one")
     four = _run_with_devices(4, tmp_path / "four")
