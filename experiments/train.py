@@ -46,6 +46,17 @@ def parse_args(argv=None) -> training.TrainConfig:
     p.add_argument("--autodiff-prepool", action="store_true",
                    help="differentiate the per-neighbour MLP with JAX autodiff (float32 gradients identical to "
                         "the official code) instead of the ~2x faster hand-written backward")
+    p.add_argument("--init-from", default=None,
+                   help="start from these params (.npz, official .pth or an orbax workdir) with a fresh optimizer; "
+                        "ignored when --workdir already holds checkpoints (the run resumes)")
+    p.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant",
+                   help="constant (default) or linear warmup + cosine decay to --lr-final over the run")
+    p.add_argument("--warmup-steps", type=int, default=0, help="linear learning-rate warmup steps")
+    p.add_argument("--lr-final", type=float, default=0.0, help="final learning rate of the cosine schedule")
+    p.add_argument("--clip-norm", type=float, default=None, help="clip gradients to this global norm")
+    p.add_argument("--ema-decay", type=float, default=None,
+                   help="validate and keep an exponential moving average of the params (e.g. 0.999)")
+    p.add_argument("--val-every-steps", type=int, default=None, help="also validate every N steps")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     a = p.parse_args(argv)
     if not a.synthetic and a.data_root is None:
@@ -57,6 +68,10 @@ def parse_args(argv=None) -> training.TrainConfig:
     for name in ("epochs", "num_points", "val_every", "save_every", "keep", "train_iters", "val_iters"):
         if getattr(a, name) < 1:
             p.error(f"--{name.replace('_', '-')} must be >= 1")
+    if a.init_from is not None and not os.path.exists(a.init_from):
+        p.error(f"--init-from {a.init_from!r} does not exist")
+    if a.ema_decay is not None and not 0.0 < a.ema_decay < 1.0:
+        p.error("--ema-decay must be in (0, 1)")
     if a.batch_size is not None and a.batch_size < 1:
         p.error("--batch-size must be >= 1")
     try:
@@ -69,7 +84,9 @@ def parse_args(argv=None) -> training.TrainConfig:
         dataset=a.dataset, data_root=a.data_root, synthetic=a.synthetic, synthetic_train=a.synthetic_train,
         synthetic_test=a.synthetic_test, workdir=a.workdir or os.path.join("runs", a.dataset), epochs=a.epochs,
         max_steps=a.max_steps, batch_size=a.batch_size, num_points=a.num_points, lr=a.lr, val_every=a.val_every,
-        val_limit=a.val_limit, save_every=a.save_every, keep=a.keep, seed=a.seed, model=model_cfg), not a.no_progress
+        val_limit=a.val_limit, save_every=a.save_every, keep=a.keep, seed=a.seed, init_from=a.init_from,
+        lr_schedule=a.lr_schedule, warmup_steps=a.warmup_steps, lr_final=a.lr_final, clip_norm=a.clip_norm,
+        ema_decay=a.ema_decay, val_every_steps=a.val_every_steps, model=model_cfg), not a.no_progress
 
 
 def main(argv=None):

@@ -267,6 +267,15 @@ class Head:
         return self.dataset[i]
 
 
+class Spread(Head):
+    """``n`` samples evenly spaced over a dataset (a view): every source of a :class:`Concat` is represented."""
+
+    def __getitem__(self, i):
+        if not 0 <= i < self.n:
+            raise IndexError(f"index {i} out of range for {self.n} samples")
+        return self.dataset[(i * len(self.dataset)) // self.n]
+
+
 class Concat:
     """Datasets one after another (e.g. real ModelNet40 shapes next to synthetic ones); same ``get`` API."""
 

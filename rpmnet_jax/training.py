@@ -47,6 +47,13 @@ class TrainConfig:
     keep: int = 3
     seed: int = 0
     max_nonfinite: int = 20  # consecutive skipped updates before giving up
+    init_from: str | None = None  # params to start from (.npz, .pth or orbax); fresh optimizer state
+    lr_schedule: str = "constant"  # constant | cosine (linear warmup, cosine decay to lr_final over the run)
+    warmup_steps: int = 0
+    lr_final: float = 0.0
+    clip_norm: float | None = None  # global gradient-norm clipping
+    ema_decay: float | None = None  # exponential moving average of the params (validated and saved as best)
+    val_every_steps: int | None = None  # also validate every N steps
     model: config_lib.RPMNetConfig = config_lib.RPMNetConfig()
 
     @property
@@ -67,21 +74,37 @@ class TrainState(NamedTuple):
     opt_state: optax.OptState
     nonfinite: jax.Array  # consecutive skipped updates
     skipped: jax.Array  # total skipped updates
+    ema: dict  # moving average of params (equal to params when cfg.ema_decay is None)
 
 
-def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
-    return optax.adam(cfg.lr)
+def learning_rate(cfg: TrainConfig, total_steps: int):
+    """The learning rate: a float, or an optax schedule of the step."""
+    if cfg.lr_schedule == "constant":
+        if not cfg.warmup_steps:
+            return cfg.lr
+        return optax.linear_schedule(0.0, cfg.lr, cfg.warmup_steps)
+    if cfg.lr_schedule == "cosine":
+        return optax.warmup_cosine_decay_schedule(0.0, cfg.lr, max(cfg.warmup_steps, 1), max(total_steps, 2),
+                                                  end_value=cfg.lr_final)
+    raise ValueError(f"lr_schedule must be 'constant' or 'cosine', got {cfg.lr_schedule!r}")
 
 
-def create_train_state(key, cfg: TrainConfig) -> TrainState:
-    params = model.init_params(key, cfg.model)
+def make_optimizer(cfg: TrainConfig, total_steps: int = 0) -> optax.GradientTransformation:
+    adam = optax.adam(learning_rate(cfg, total_steps))
+    return adam if cfg.clip_norm is None else optax.chain(optax.clip_by_global_norm(cfg.clip_norm), adam)
+
+
+def create_train_state(key, cfg: TrainConfig, total_steps: int = 0, params=None) -> TrainState:
+    params = model.init_params(key, cfg.model) if params is None else params
     zero = lambda: jnp.zeros((), jnp.int32)  # distinct buffers: the state is donated
-    return TrainState(zero(), params, make_optimizer(cfg).init(params), zero(), zero())
+    ema = jax.tree.map(jnp.array, params)
+    return TrainState(zero(), params, make_optimizer(cfg, total_steps).init(params), zero(), zero(), ema)
 
 
-def make_train_step(cfg: TrainConfig):
+def make_train_step(cfg: TrainConfig, total_steps: int = 0):
     """``train_step(state, batch) -> (state, scalars)``; skips (and counts) non-finite updates."""
-    optimizer = make_optimizer(cfg)
+    optimizer = make_optimizer(cfg, total_steps)
+    decay = cfg.ema_decay
     mcfg = cfg.model
 
     def loss_fn(params, batch):
@@ -96,8 +119,11 @@ def make_train_step(cfg: TrainConfig):
         updates, opt_state = optimizer.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
         keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(finite, a, b), new, old)
-        new_state = TrainState(state.step + 1, keep(params, state.params), keep(opt_state, state.opt_state),
-                               jnp.where(finite, 0, state.nonfinite + 1), state.skipped + (~finite).astype(jnp.int32))
+        params = keep(params, state.params)
+        ema = params if decay is None else jax.tree.map(lambda e, p: decay * e + (1.0 - decay) * p, state.ema, params)
+        new_state = TrainState(state.step + 1, params, keep(opt_state, state.opt_state),
+                               jnp.where(finite, 0, state.nonfinite + 1), state.skipped + (~finite).astype(jnp.int32),
+                               ema)
         scalars = {"loss": loss, "mae": terms["mae"], "inlier": terms["inlier"], "alpha": alpha, "beta": beta,
                    "finite": finite}
         return new_state, scalars
@@ -193,7 +219,8 @@ def restore_params(path: str) -> dict:
             step = mngr.best_step() if folder.endswith("best") else mngr.latest_step()
             step = step if step is not None else mngr.latest_step()
             if step is not None:
-                return mngr.restore(step, args=ocp.args.StandardRestore())["params"]
+                restored = mngr.restore(step, args=ocp.args.StandardRestore())
+                return restored.get("ema", restored["params"])  # the EMA is what validation chose
         finally:
             mngr.close()
     raise FileNotFoundError(f"no orbax checkpoint found under {path}")
@@ -222,7 +249,7 @@ def validate(params, val_set, cfg: TrainConfig, eval_fn=None, progress: bool = T
     """Mean official metrics of ``cfg.model.num_reg_iters``-iteration registration on ``val_set``."""
     eval_fn = eval_fn or make_eval_fn(cfg)
     n = len(val_set) if cfg.val_limit is None else min(cfg.val_limit, len(val_set))
-    subset = data.Head(val_set, n)
+    subset = data.Spread(val_set, n)
     per_pair: dict = {}
     from tqdm.auto import tqdm
     for batch in tqdm(loader.batches(subset, cfg.resolved_batch_size), desc="validate", leave=False,
@@ -241,7 +268,8 @@ def _check_resume_config(cfg: TrainConfig) -> None:
     if os.path.isfile(path):
         with open(path) as f:
             saved = json.load(f)
-        keys = ("dataset", "num_points", "lr", "seed", "model", "synthetic", "data_root")
+        keys = ("dataset", "num_points", "lr", "seed", "model", "synthetic", "data_root", "lr_schedule",
+                "warmup_steps", "lr_final", "clip_norm", "ema_decay")
         speed_only = lambda m: {k: v for k, v in (m or {}).items() if k != "fused_prepool"}
         diff = {k: (saved.get(k), current.get(k)) for k in keys
                 if (speed_only(saved.get(k)) if k == "model" else saved.get(k))
@@ -274,13 +302,19 @@ def train_and_evaluate(cfg: TrainConfig, progress: bool = True) -> dict:
         total_steps = min(total_steps, cfg.max_steps)
 
     ckpt = Checkpoints(cfg.workdir, cfg.keep)
-    state = create_train_state(jax.random.PRNGKey(cfg.seed), cfg)
+    init_params = None
+    if cfg.init_from:
+        from rpmnet_jax import pretrained
+        init_params = jax.tree.map(jnp.asarray, pretrained.load_params(cfg.init_from))
+    state = create_train_state(jax.random.PRNGKey(cfg.seed), cfg, total_steps, init_params)
     restored = ckpt.restore_latest(state)
     if restored is not None:
         state = restored
         log.info("resumed from step %d", int(state.step))
+    elif cfg.init_from:
+        log.info("initialised from %s", cfg.init_from)
     state = par.put_state(state)
-    train_step, eval_fn = make_train_step(cfg), make_eval_fn(cfg)
+    train_step, eval_fn = make_train_step(cfg, total_steps), make_eval_fn(cfg)
     writer = _summary_writer(cfg.workdir)
 
     stop = {"flag": False}
@@ -305,7 +339,12 @@ def train_and_evaluate(cfg: TrainConfig, progress: bool = True) -> dict:
                 _log_scalars(writer, step, scalars)
                 bar.update(1)
                 bar.set_postfix(loss=f"{scalars['loss']:.4f}", pairs_s=f"{bar.n * bs / (time.time() - t_epoch):.1f}")
-                if step % cfg.save_every == 0:
+                if cfg.val_every_steps and step % cfg.val_every_steps == 0 and step < total_steps:
+                    val_summary = validate(state.ema, val_set, cfg, eval_fn, progress)
+                    _log_scalars(writer, step, {f"val/{k}": v for k, v in val_summary.items()})
+                    log.info("step %d validation %s", step, json.dumps(val_summary))
+                    ckpt.save(state, best_metric=val_summary["chamfer_dist"])
+                elif step % cfg.save_every == 0:
                     ckpt.save(state)
                 if stop["flag"] or step >= total_steps or bar.n >= n_this:
                     break
@@ -313,7 +352,7 @@ def train_and_evaluate(cfg: TrainConfig, progress: bool = True) -> dict:
             epoch_done = step % steps_per_epoch == 0
             finished = step >= total_steps
             if not stop["flag"] and ((epoch_done and (step // steps_per_epoch) % cfg.val_every == 0) or finished):
-                val_summary = validate(state.params, val_set, cfg, eval_fn, progress)
+                val_summary = validate(state.ema, val_set, cfg, eval_fn, progress)
                 _log_scalars(writer, step, {f"val/{k}": v for k, v in val_summary.items()})
                 log.info("step %d validation %s", step, json.dumps(val_summary))
                 ckpt.save(state, best_metric=val_summary["chamfer_dist"])
