@@ -35,7 +35,7 @@ def _inputs(points: int, batch: int, seed: int = 0):
     """A realistic pair: synthetic shapes (unit sphere) and a random rigid motion of the source."""
     import numpy as np
     sys.path.insert(0, os.path.dirname(HERE))
-    from rpmnet_jax import synthetic
+    from rpmnet_jax.data import synthetic
     rng = np.random.default_rng(seed)
     src, ref, gt = [], [], []
     for b in range(batch):
@@ -130,7 +130,9 @@ def worker_jax(a) -> dict:
     import jax
     import numpy as np
     sys.path.insert(0, os.path.dirname(HERE))
-    from rpmnet_jax import config, convert, registration, training
+    from rpmnet_jax import config, registration
+    from rpmnet_jax import train as training
+    from rpmnet_jax.weights import convert
     params = convert.params_from_torch(_torch_state(a.torch_src))
     src, ref, gt = _inputs(a.points, a.batch)
     dev = jax.devices()[0]
@@ -174,7 +176,8 @@ def worker_check(a) -> dict:
     import numpy as np
     import torch
     sys.path.insert(0, os.path.dirname(HERE))
-    from rpmnet_jax import convert, registration
+    from rpmnet_jax import registration
+    from rpmnet_jax.weights import convert
     torch.set_num_threads(a.threads)
     net = _torch_model(a.torch_src).eval()
     params = convert.params_from_torch({k: v.detach().numpy() for k, v in net.state_dict().items()})
@@ -193,7 +196,7 @@ def run_worker(a, impl: str, task: str, points: int, batch: int, extra=()) -> di
            "--repeats", str(a.repeats if task == "infer" else a.train_repeats), *extra]
     env = dict(os.environ)
     if a.malloc == "hugetlb":  # the same glibc setting for both frameworks (see rpmnet_jax/runtime.py)
-        from rpmnet_jax import runtime
+        from rpmnet_jax.cli import runtime
         env["GLIBC_TUNABLES"] = runtime.TUNABLES
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if proc.returncode != 0:

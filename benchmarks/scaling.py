@@ -42,7 +42,7 @@ def measure_jax(points: int, repeats: int) -> dict:
 
     def matching(f_src, f_ref, ref_xyz):
         perm = registration.match_matrix(f_src, f_ref, one, 0.5 * one, cfg)
-        return (perm @ ref_xyz) / (jnp.sum(perm, axis=2)[..., None] + 1e-5)
+        return registration.soft_procrustes(perm, xyz, ref_xyz)[0]
 
     stages = {
         "grouping": (jax.jit(lambda x, n: registration.group(x, n, cfg)), (xyz, nrm)),

@@ -9,13 +9,15 @@ import os
 
 import numpy as np
 
-from rpmnet_jax import convert, pretrained, training
+from rpmnet_jax import train as training
+from rpmnet_jax.weights import convert
+from rpmnet_jax.weights import loading
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--workdir", required=True, help="training workdir (its best checkpoint, else the latest)")
-    p.add_argument("--out", default=pretrained.DEFAULT_WEIGHTS)
+    p.add_argument("--out", default=loading.DEFAULT_WEIGHTS)
     p.add_argument("--info", default="{}", help="JSON merged into the model card written beside the weights")
     a = p.parse_args(argv)
     params = training.restore_params(a.workdir)

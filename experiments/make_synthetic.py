@@ -6,7 +6,7 @@
 import argparse
 import time
 
-from rpmnet_jax import synthetic
+from rpmnet_jax.data import synthetic
 
 
 def main(argv=None):

@@ -1,11 +1,17 @@
-"""rpmnet_jax: RPM-Net (Yew & Lee, CVPR 2020) as pure JAX functions and two Flax PointNets."""
+"""rpmnet_jax: RPM-Net (Yew & Lee, CVPR 2020) as pure JAX functions and two Flax PointNets.
 
-from rpmnet_jax.alignment import Alignment, align
+Layers (each imports only the ones above it): ``ops`` (pure jax.numpy) → ``nn`` (the two PointNets) →
+``registration`` / ``losses`` → ``weights`` (checkpoints in, shipped model out) → ``scans`` (own clouds),
+``data``, ``evaluation``, ``train`` → ``cli`` (argument parsing, messages for people).
+"""
+
 from rpmnet_jax.config import RPMNetConfig
-from rpmnet_jax.model import init_params
-from rpmnet_jax.pretrained import load_default_params, load_params
+from rpmnet_jax.nn.pointnets import init_params
 from rpmnet_jax.registration import Registration, register
+from rpmnet_jax.scans.alignment import Alignment, align
+from rpmnet_jax.weights import convert
+from rpmnet_jax.weights.loading import load_default_params, load_params
 
-__all__ = ["Alignment", "RPMNetConfig", "Registration", "align", "init_params", "load_default_params",
+__all__ = ["Alignment", "RPMNetConfig", "Registration", "align", "convert", "init_params", "load_default_params",
            "load_params", "register"]
 __version__ = "0.1.0"

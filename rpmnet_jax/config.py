@@ -27,7 +27,7 @@ class RPMNetConfig:
         global pair (the ablation of the paper's Table 4).
       query_chunk: ball-query rows processed at once (bounds the O(N^2) memory).
       fused_prepool: differentiate the per-neighbour MLP + max-pool with the hand-written backward of
-        :func:`rpmnet_jax.prepool.mlp_max` (about 2x faster training steps on CPU; same forward). Off, JAX
+        :func:`rpmnet_jax.nn.fused_mlp_max.mlp_max` (about 2x faster training steps on CPU; same forward). Off, JAX
         autodiff reproduces the official float32 gradients to 1e-4.
     """
 

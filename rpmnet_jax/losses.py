@@ -5,7 +5,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from rpmnet_jax import config as config_lib
-from rpmnet_jax import registration, se3
+from rpmnet_jax import registration
+from rpmnet_jax.ops import se3
 
 DISCOUNT = 0.5  # iteration i of N is weighted DISCOUNT ** (N - 1 - i)
 

@@ -11,6 +11,7 @@ NaN (GroupNorm statistics are per pair), while the other pairs of the batch are 
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -18,7 +19,13 @@ import jax.numpy as jnp
 from jax import lax
 
 from rpmnet_jax import config as config_lib
-from rpmnet_jax import grouping, model, ppf, procrustes, se3, sinkhorn, validation
+from rpmnet_jax.ops import grouping
+from rpmnet_jax.nn import pointnets
+from rpmnet_jax.ops import ppf
+from rpmnet_jax.ops import procrustes
+from rpmnet_jax.ops import se3
+from rpmnet_jax.ops import sinkhorn
+from rpmnet_jax import input_checks
 
 _EPS = 1e-5
 
@@ -60,12 +67,12 @@ def features(params, xyz, hood: Neighbourhoods, cfg: config_lib.RPMNetConfig):
         "ppf": lambda: hood.ppf,
     }
     fused = jnp.concatenate([parts[f]() for f in cfg.features], axis=-1)
-    return model.feature_net(cfg).apply({"params": params["feat_extractor"]}, fused)
+    return pointnets.feature_net(cfg).apply({"params": params["feat_extractor"]}, fused)
 
 
 def annealing(params, xyz_src, xyz_ref, cfg: config_lib.RPMNetConfig):
     """``(beta (B,), alpha (B,))`` for a source/reference pair of point sets."""
-    return model.parameter_net(cfg).apply({"params": params["weights_net"]}, xyz_src, xyz_ref)
+    return pointnets.parameter_net(cfg).apply({"params": params["weights_net"]}, xyz_src, xyz_ref)
 
 
 def match_matrix(feat_src, feat_ref, beta, alpha, cfg: config_lib.RPMNetConfig):
@@ -75,24 +82,23 @@ def match_matrix(feat_src, feat_ref, beta, alpha, cfg: config_lib.RPMNetConfig):
     return jnp.exp(sinkhorn.log_sinkhorn(affinity, cfg.num_sk_iters, cfg.add_slack))
 
 
-def register(params, src, ref, cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(),
-             num_iters: int | None = None) -> Registration:
-    """Registers ``src (B, J, 6)`` onto ``ref (B, K, 6)`` (xyz + unit normals).
+def soft_procrustes(perm, xyz_src, xyz_ref):
+    """One soft-correspondence step: match matrix ``perm (B, J, K)`` → ``(transform (B, 3, 4), weighted_ref
+    (B, J, 3), row_sum (B, J))``, the weighted Procrustes fit of each source point onto its soft partner."""
+    row_sum = jnp.sum(perm, axis=2)
+    weighted_ref = (perm @ xyz_ref) / (row_sum[..., None] + _EPS)
+    return procrustes.weighted_procrustes(xyz_src, weighted_ref, row_sum), weighted_ref, row_sum
 
-    ``num_iters`` defaults to ``cfg.num_reg_iters``; under ``jax.jit`` pass it as a static argument.
-    Returns a :class:`Registration`; ``.transform (B, 3, 4)`` maps the source onto the reference.
-    """
-    validation.check_pair(src, ref)
+
+def _check_iters(cfg, num_iters) -> int:
     num_iters = cfg.num_reg_iters if num_iters is None else int(num_iters)
     if num_iters < 1:
         raise ValueError(f"num_iters must be >= 1, got {num_iters}")
-    src = jnp.asarray(src)
-    ref = jnp.asarray(ref)
-    xyz_src, norm_src = src[..., :3], src[..., 3:6]
-    xyz_ref, norm_ref = ref[..., :3], ref[..., 3:6]
+    return num_iters
 
-    feat_ref = features(params, xyz_ref, group(xyz_ref, norm_ref, cfg), cfg)
-    hood_src = group(xyz_src, norm_src, cfg)
+
+def _iterate(params, xyz_src, hood_src: Neighbourhoods, xyz_ref, feat_ref, init, cfg, num_iters) -> Registration:
+    """The ``lax.scan`` over iterations from the transforms ``init (B, 3, 4)``; every input has batch ``B``."""
 
     def iteration(transform, _):
         transform = lax.stop_gradient(transform)
@@ -102,11 +108,67 @@ def register(params, src, ref, cfg: config_lib.RPMNetConfig = config_lib.RPMNetC
         beta, alpha = annealing(params, xyz_t, xyz_ref, cfg)
         feat_src = features(params, xyz_t, hood_t, cfg)
         perm = match_matrix(feat_src, feat_ref, beta, alpha, cfg)
-        row_sum = jnp.sum(perm, axis=2)
-        weighted_ref = (perm @ xyz_ref) / (row_sum[..., None] + _EPS)
-        new_transform = procrustes.weighted_procrustes(xyz_src, weighted_ref, row_sum)
+        new_transform, weighted_ref, _ = soft_procrustes(perm, xyz_src, xyz_ref)
         return new_transform, Registration(new_transform, perm, weighted_ref, alpha, beta)
 
-    init = se3.identity((src.shape[0],), xyz_src.dtype)
     _, out = lax.scan(iteration, init, None, length=num_iters)
     return out
+
+
+def register(params, src, ref, cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(),
+             num_iters: int | None = None) -> Registration:
+    """Registers ``src (B, J, 6)`` onto ``ref (B, K, 6)`` (xyz + unit normals).
+
+    ``num_iters`` defaults to ``cfg.num_reg_iters``; under ``jax.jit`` pass it as a static argument.
+    Returns a :class:`Registration`; ``.transform (B, 3, 4)`` maps the source onto the reference.
+    """
+    input_checks.check_pair(src, ref)
+    num_iters = _check_iters(cfg, num_iters)
+    src = jnp.asarray(src)
+    ref = jnp.asarray(ref)
+    xyz_src, norm_src = src[..., :3], src[..., 3:6]
+    xyz_ref, norm_ref = ref[..., :3], ref[..., 3:6]
+    feat_ref = features(params, xyz_ref, group(xyz_ref, norm_ref, cfg), cfg)
+    hood_src = group(xyz_src, norm_src, cfg)
+    init = se3.identity((src.shape[0],), xyz_src.dtype)
+    return _iterate(params, xyz_src, hood_src, xyz_ref, feat_ref, init, cfg, num_iters)
+
+
+def register_from(params, src, ref, init, cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(),
+                  num_iters: int | None = None) -> Registration:
+    """Registers one pair ``src (1, J, 6)``, ``ref (1, K, 6)`` from each of ``H`` initial transforms
+    ``init (H, 3, 4)`` in one batched call (the global search's hypotheses).
+
+    The reference features and the source neighbourhoods are computed once and shared by every hypothesis
+    (rigid motions change neither the neighbour sets nor the PPF); the ``H`` runs are otherwise
+    :func:`register`'s iterations started from ``init`` instead of the identity. Returns a
+    :class:`Registration` with batch ``H``; its transforms are absolute (map the original source).
+    """
+    input_checks.check_pair(src, ref)
+    if src.shape[0] != 1:
+        raise ValueError(f"register_from takes one pair (batch 1), got src {tuple(src.shape)}")
+    if init.ndim != 3 or init.shape[1:] != (3, 4):
+        raise ValueError(f"init must be (H, 3, 4) transforms, got {tuple(init.shape)}")
+    num_iters = _check_iters(cfg, num_iters)
+    src, ref = jnp.asarray(src), jnp.asarray(ref)
+    h = init.shape[0]
+    xyz_src, norm_src = src[..., :3], src[..., 3:6]
+    xyz_ref, norm_ref = ref[..., :3], ref[..., 3:6]
+    feat_ref = features(params, xyz_ref, group(xyz_ref, norm_ref, cfg), cfg)
+    hood_src = group(xyz_src, norm_src, cfg)
+    many = lambda x: jnp.broadcast_to(x, (h,) + x.shape[1:])
+    return _iterate(params, many(xyz_src), jax.tree.map(many, hood_src), many(xyz_ref), many(feat_ref),
+                    jnp.asarray(init, xyz_src.dtype), cfg, num_iters)
+
+
+@functools.lru_cache(maxsize=None)
+def jitted(cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(), num_iters: int | None = None):
+    """``jax.jit(register)`` for one config and iteration count, compiled once per process:
+    ``jitted(cfg, n)(params, src, ref) -> Registration``."""
+    return jax.jit(functools.partial(register, cfg=cfg, num_iters=num_iters))
+
+
+@functools.lru_cache(maxsize=None)
+def jitted_from(cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(), num_iters: int | None = None):
+    """``jax.jit(register_from)`` for one config and iteration count: ``(params, src, ref, init)``."""
+    return jax.jit(functools.partial(register_from, cfg=cfg, num_iters=num_iters))

@@ -9,7 +9,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import rpmnet_jax
-from rpmnet_jax import cli, cloud_io, convert, normals, pretrained, synthetic
+from rpmnet_jax.cli import register as register_cli
+from rpmnet_jax.scans import cloud_io
+from rpmnet_jax.weights import convert
+from rpmnet_jax.scans import normals
+from rpmnet_jax.weights import loading
+from rpmnet_jax.data import synthetic
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +123,7 @@ def _raw(path, content: bytes) -> str:
 
 
 def _run_cli(args, capsys):
-    code = cli.main(args)
+    code = register_cli.main(args)
     out = capsys.readouterr()
     return code, out.out, out.err
 
@@ -162,7 +167,7 @@ def test_missing_checkpoint_is_an_error(tmp_path, capsys):
     assert code == 2 and "not found" in err
 
 
-@pytest.mark.skipif(not pretrained.has_default(), reason="no shipped model in this checkout")
+@pytest.mark.skipif(not loading.has_default(), reason="no shipped model in this checkout")
 @pytest.mark.parametrize("ext", [".ply", ".pcd", ".xyz", ".npy"])
 def test_cli_recovers_a_known_transform_with_the_shipped_model(tmp_path, capsys, ext):
     """Partial, noisy pair in non-unit scale and offset, written to disk; the CLI recovers the motion."""

@@ -8,6 +8,8 @@ import jax
 import numpy as np
 import pytest
 
+from rpmnet_jax.ops import se3
+
 FIXTURES = pathlib.Path(os.environ.get("RPMNET_FIXTURES",
                                        pathlib.Path(__file__).resolve().parents[2] / "shared" / "fixtures"))
 DATA = FIXTURES.parent / "data"
@@ -41,13 +43,6 @@ def random_cloud(rng: np.random.Generator, batch: int, n: int, scale: float = 1.
 
 def random_transform(rng: np.random.Generator, batch: int, trans_mag: float = 0.5) -> np.ndarray:
     """``(batch, 3, 4)`` uniformly random rotations with translations in ±trans_mag."""
-    q = rng.normal(size=(batch, 4))
-    q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q.T
-    rot = np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
+    rot = se3.quaternion_to_matrix(rng.normal(size=(batch, 4)))
     trans = rng.uniform(-trans_mag, trans_mag, size=(batch, 3, 1))
     return np.concatenate([rot, trans], axis=-1)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import rpmnet_jax
-from rpmnet_jax import convert
+from rpmnet_jax.weights import convert
 
 from conftest import require_fixtures
 

@@ -7,7 +7,9 @@ import h5py
 import numpy as np
 import pytest
 
-from rpmnet_jax import data, loader, synthetic
+from rpmnet_jax import data
+from rpmnet_jax.data import loader
+from rpmnet_jax.data import synthetic
 
 from conftest import require_fixtures
 

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from experiments import eval_scans
-from rpmnet_jax import cloud_io, synthetic
+from rpmnet_jax.cli import eval_scans
+from rpmnet_jax.scans import cloud_io
+from rpmnet_jax.data import synthetic
 
 
 def _conf_line(name, pose):

@@ -9,8 +9,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from experiments import eval as eval_cli
-from rpmnet_jax import baselines, convert, data, evaluation, metrics, model, synthetic
+from rpmnet_jax.cli import evaluate as eval_cli
+from rpmnet_jax import data
+from rpmnet_jax.evaluation import protocol
+from rpmnet_jax.evaluation import baselines
+from rpmnet_jax.weights import convert
+from rpmnet_jax.evaluation import metrics
+from rpmnet_jax.nn import pointnets
+from rpmnet_jax.data import synthetic
 from rpmnet_jax.config import RPMNetConfig
 
 NUM_POINTS = 128
@@ -25,7 +31,7 @@ def tiny_root(tmp_path_factory):
 @pytest.fixture(scope="module")
 def random_weights(tmp_path_factory):
     path = tmp_path_factory.mktemp("weights") / "random.npz"
-    np.savez(path, **convert.params_to_torch(model.init_params(jax.random.PRNGKey(0), RPMNetConfig())))
+    np.savez(path, **convert.params_to_torch(pointnets.init_params(jax.random.PRNGKey(0), RPMNetConfig())))
     return str(path)
 
 
@@ -59,7 +65,7 @@ def test_eval_cli_writes_documented_files(tiny_root, random_weights, tmp_path, c
                  "transforms_identity.npy", "chamfer_per_iteration.png", "qualitative.png"):
         assert (out / name).is_file(), name
     header, rows = _read_csv(out / "per_pair.csv")
-    assert tuple(header) == evaluation.CSV_COLUMNS
+    assert tuple(header) == protocol.CSV_COLUMNS
     assert len(rows) == 6
     transforms = np.load(out / "transforms.npy")
     assert transforms.shape == (6, 3, 3, 4)
@@ -119,7 +125,7 @@ def test_open3d_baselines_register_easy_pair(method):
     rot = Rotation.from_euler("xyz", [10, -5, 8], degrees=True).as_matrix()
     trans = np.array([0.05, 0.0, 0.02])
     ref = np.concatenate([src[:, :3] @ rot.T + trans, src[:, 3:] @ rot.T], axis=1)
-    pred = evaluation.method_fn(method)(src[None], ref[None])
+    pred = protocol.method_fn(method)(src[None], ref[None])
     assert pred.shape == (1, 1, 3, 4)
     gt = np.concatenate([rot, trans[:, None]], axis=1)[None]
     assert metrics.registration_metrics(pred[:, -1], gt, src[None], ref[None], src[None])["err_r_deg"][0] < 1.0

@@ -2,7 +2,7 @@ import jax
 import numpy as np
 import pytest
 
-from rpmnet_jax import grouping
+from rpmnet_jax.ops import grouping
 
 from conftest import random_cloud
 

@@ -3,7 +3,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import rpmnet_jax
-from rpmnet_jax import losses, registration, se3
+from rpmnet_jax import losses, registration
+from rpmnet_jax.ops import se3
 
 from conftest import random_cloud, random_transform
 

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from rpmnet_jax import metrics
+from rpmnet_jax.evaluation import metrics
+from rpmnet_jax.ops import se3
 
 
 def _rot(axis: str, deg: float) -> np.ndarray:
@@ -20,11 +21,7 @@ def _transform(rot, trans) -> np.ndarray:
 
 
 def _random_rotation(rng) -> np.ndarray:
-    q = rng.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return se3.quaternion_to_matrix(rng.normal(size=4))
 
 
 def _euler_xyz_deg(r) -> np.ndarray:

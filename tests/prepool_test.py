@@ -6,13 +6,15 @@ import numpy as np
 import pytest
 
 import rpmnet_jax
-from rpmnet_jax import convert, losses, prepool
+from rpmnet_jax import losses
+from rpmnet_jax.weights import convert
+from rpmnet_jax.nn import fused_mlp_max
 from tests.conftest import float64, require_fixtures
 
 
 def _layers(key, dims, dtype=jnp.float32):
     keys = jax.random.split(key, 4 * len(dims))
-    return tuple(prepool.Layer(jax.random.normal(keys[4 * i], (a, b), dtype) / a**0.5,
+    return tuple(fused_mlp_max.Layer(jax.random.normal(keys[4 * i], (a, b), dtype) / a**0.5,
                                0.1 * jax.random.normal(keys[4 * i + 1], (b,), dtype),
                                1 + 0.1 * jax.random.normal(keys[4 * i + 2], (b,), dtype),
                                0.1 * jax.random.normal(keys[4 * i + 3], (b,), dtype))
@@ -28,11 +30,11 @@ def test_values_and_gradients_match_autodiff_in_float64():
         x = jax.random.normal(jax.random.PRNGKey(0), (2, 20, 16, 10), jnp.float64)
         layers = _layers(jax.random.PRNGKey(1), [(10, 16), (16, 16), (16, 32)], jnp.float64)
         w = jax.random.normal(jax.random.PRNGKey(2), (2, 20, 32), jnp.float64)
-        exact = prepool.mlp_max_layerwise(x, layers, 8)
-        for pool in (prepool.mlp_max, prepool.mlp_max_reference):  # both run the inference forward
+        exact = fused_mlp_max.mlp_max_layerwise(x, layers, 8)
+        for pool in (fused_mlp_max.mlp_max, fused_mlp_max.mlp_max_reference):  # both run the inference forward
             np.testing.assert_allclose(pool(x, layers, 8), exact, rtol=1e-12, atol=1e-12)
-        fused = jax.grad(_loss, argnums=(1, 2))(prepool.mlp_max, x, layers, w)
-        auto = jax.grad(_loss, argnums=(1, 2))(prepool.mlp_max_layerwise, x, layers, w)
+        fused = jax.grad(_loss, argnums=(1, 2))(fused_mlp_max.mlp_max, x, layers, w)
+        auto = jax.grad(_loss, argnums=(1, 2))(fused_mlp_max.mlp_max_layerwise, x, layers, w)
         for a, b in zip(jax.tree.leaves(fused), jax.tree.leaves(auto)):
             np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
 
@@ -41,13 +43,13 @@ def test_inference_forward_matches_layerwise_in_float32_and_keeps_its_gradients(
     x = jax.random.normal(jax.random.PRNGKey(3), (2, 64, 32, 10))
     layers = _layers(jax.random.PRNGKey(4), [(10, 96), (96, 96), (96, 192)])
     layers = (layers[0], layers[1], layers[2]._replace(scale=-layers[2].scale))  # a negative GroupNorm scale
-    exact = prepool.mlp_max_layerwise(x, layers, 8)
+    exact = fused_mlp_max.mlp_max_layerwise(x, layers, 8)
     assert float(jnp.max(jnp.abs(exact))) > 1.0
-    for pool in (prepool.mlp_max, prepool.mlp_max_reference):
+    for pool in (fused_mlp_max.mlp_max, fused_mlp_max.mlp_max_reference):
         np.testing.assert_allclose(jax.jit(pool, static_argnums=2)(x, layers, 8), exact, rtol=2e-5, atol=2e-5)
     w = jax.random.normal(jax.random.PRNGKey(5), exact.shape)
-    wrapped = jax.jit(jax.grad(_loss, argnums=(1, 2)), static_argnums=0)(prepool.mlp_max_reference, x, layers, w)
-    plain = jax.jit(jax.grad(_loss, argnums=(1, 2)), static_argnums=0)(prepool.mlp_max_layerwise, x, layers, w)
+    wrapped = jax.jit(jax.grad(_loss, argnums=(1, 2)), static_argnums=0)(fused_mlp_max.mlp_max_reference, x, layers, w)
+    plain = jax.jit(jax.grad(_loss, argnums=(1, 2)), static_argnums=0)(fused_mlp_max.mlp_max_layerwise, x, layers, w)
     for a, b in zip(jax.tree.leaves(wrapped), jax.tree.leaves(plain)):
         np.testing.assert_array_equal(a, b)
 
@@ -56,7 +58,7 @@ def test_gradient_is_finite_when_a_channel_is_dead():
     x = jax.random.normal(jax.random.PRNGKey(0), (1, 5, 8, 10))
     layers = _layers(jax.random.PRNGKey(1), [(10, 16)])
     layers = (layers[0]._replace(shift=jnp.full((16,), -100.0)),)  # every ReLU off: max over all-zero ties
-    g = jax.grad(lambda l: jnp.sum(prepool.mlp_max(x, l, 8)))(layers)
+    g = jax.grad(lambda l: jnp.sum(fused_mlp_max.mlp_max(x, l, 8)))(layers)
     assert all(bool(jnp.all(jnp.isfinite(t))) for t in jax.tree.leaves(g))
     np.testing.assert_array_equal(g[0].kernel, 0.0)
 

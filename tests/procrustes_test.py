@@ -3,7 +3,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.test_util import check_grads
 
-from rpmnet_jax import procrustes, se3
+from rpmnet_jax.ops import procrustes
+from rpmnet_jax.ops import se3
 
 from conftest import float64, random_transform
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import rpmnet_jax
-from rpmnet_jax import se3
+from rpmnet_jax.ops import se3
 
 from conftest import random_cloud, random_transform
 

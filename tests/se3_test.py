@@ -2,7 +2,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from rpmnet_jax import se3
+from rpmnet_jax.ops import se3
 
 from conftest import random_transform
 

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from rpmnet_jax import sinkhorn
+from rpmnet_jax.ops import sinkhorn
 
 from conftest import float64
 

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from rpmnet_jax import config as config_lib
-from rpmnet_jax import data, losses, synthetic, training
+from rpmnet_jax import data, losses
+from rpmnet_jax import train as training
+from rpmnet_jax.data import synthetic
 
 TINY_MODEL = config_lib.RPMNetConfig(num_neighbors=8, feature_dim=16, num_reg_iters=2)
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -106,7 +108,7 @@ _MULTI = r"""
 import json, sys, jax, numpy as np
 sys.path.insert(0, {tests!r})
 from training_test import tiny_cfg
-from rpmnet_jax import training
+from rpmnet_jax import train as training
 s = training.train_and_evaluate(tiny_cfg({workdir!r}, max_steps=3, val_limit=None), progress=False)
 params = training.restore_params({workdir!r})
 print(json.dumps({{"devices": s["devices"], "losses": s["losses"],

@@ -29,37 +29,23 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--centering", choices=("separate", "common"), default="separate",
                    help="centre each cloud on its own centroid (default) or both on their joint centroid")
     p.add_argument("--estimate-normals", action="store_true", help="re-estimate normals even if the files have them")
+    p.add_argument("--init", choices=("auto", "local", "global"), default="auto",
+                   help="network start: local (identity), global (rotation hypotheses covering every orientation), "
+                        "auto (local, global when its fitness is low; default)")
+    p.add_argument("--refine", choices=("icp", "none"), default="icp",
+                   help="robust point-to-plane ICP on denser samples (default), or none (the raw network)")
+    p.add_argument("--max-correspondence-distance", type=float, default=None,
+                   help="inlier threshold in the clouds' units (default: 2%% of the clouds' radius)")
+    p.add_argument("--low-fitness", type=float, default=0.3,
+                   help="warn when the fitness of the answer is below this (default 0.3)")
     return p
-
-
-def plot_alignment(path: str, src, ref, aligned, max_points: int = 3000) -> None:
-    """Headless 3-D scatter of source (red), reference (blue) and aligned source (green)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    rng = np.random.default_rng(0)
-    sub = lambda x: x[rng.choice(len(x), min(len(x), max_points), replace=False)]
-    fig = plt.figure(figsize=(10, 5))
-    for i, (title, clouds) in enumerate([("before", [(src, "tab:red", "source"), (ref, "tab:blue", "reference")]),
-                                         ("after", [(aligned, "tab:green", "aligned source"),
-                                                    (ref, "tab:blue", "reference")])]):
-        ax = fig.add_subplot(1, 2, i + 1, projection="3d")
-        for pts, colour, label in clouds:
-            s = sub(pts)
-            ax.scatter(s[:, 0], s[:, 1], s[:, 2], s=1, c=colour, label=label)
-        ax.set_title(title)
-        ax.legend(loc="upper left", markerscale=6, fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    from rpmnet_jax import alignment as align_lib
-    from rpmnet_jax import cloud_io, pretrained
+    from rpmnet_jax.scans import alignment as align_lib
+    from rpmnet_jax.scans import cloud_io
+    from rpmnet_jax.weights import loading
 
     try:
         for out in (args.out_transform, args.out_aligned, args.plot):
@@ -69,16 +55,18 @@ def main(argv=None) -> int:
             cloud_io._ext(args.out_aligned)
         src, src_n = cloud_io.read_cloud(args.src)
         ref, ref_n = cloud_io.read_cloud(args.ref)
-        if args.checkpoint is None and not pretrained.has_default():
+        if args.checkpoint is None and not loading.has_default():
             raise ValueError("no shipped model in this install; pass --checkpoint")
         t0 = time.time()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             result = align_lib.align(src, ref, src_n, ref_n, checkpoint=args.checkpoint, num_points=args.num_points,
                                      num_iters=args.iters, sampling=args.sampling, seed=args.seed,
-                                     centering=args.centering, reestimate_normals=args.estimate_normals)
+                                     centering=args.centering, reestimate_normals=args.estimate_normals,
+                                     init=args.init, refine=args.refine,
+                                     max_correspondence_distance=args.max_correspondence_distance)
         seconds = time.time() - t0
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, OSError) as e:  # bad input, or a file that is missing, a folder, or unreadable
         print(f"rpmnet-register: error: {e}", file=sys.stderr)
         return 2
     for w in caught:
@@ -86,22 +74,34 @@ def main(argv=None) -> int:
     import numpy as np
     with np.printoptions(precision=6, suppress=True):
         print(result.transform)
+    print(f"fitness {result.fitness:.3f}  inlier_rmse {result.inlier_rmse:.6g}  "
+          f"max_correspondence_distance {result.max_correspondence_distance:.6g}  start {result.init}  "
+          f"icp_iterations {result.num_iterations}{'' if result.converged else ' (not converged)'}")
+    stages = "  ".join(f"{k} {v:.2f}" for k, v in result.timings.items() if k != "total")
     print(f"confidence {result.confidence:.3f}  points {result.num_points[0]}/{result.num_points[1]}  "
-          f"time {seconds:.2f} s")
+          f"time {seconds:.2f} s ({stages})")
+    if result.fitness < args.low_fitness:
+        print(f"rpmnet-register: warning: low fitness {result.fitness:.3f}: only this share of the source has a "
+              "reference point within the correspondence distance; the answer is likely wrong (try --init global, "
+              "or a larger --max-correspondence-distance if the clouds are sparse or noisy)", file=sys.stderr)
     if args.out_transform:
-        cloud_io.write_transform(args.out_transform, result.transform, confidence=result.confidence)
+        cloud_io.write_transform(args.out_transform, result.transform, confidence=result.confidence,
+                                 fitness=result.fitness, inlier_rmse=result.inlier_rmse, start=result.init,
+                                 max_correspondence_distance=result.max_correspondence_distance,
+                                 timings=result.timings)
     if args.out_aligned:
         aligned_n = None if src_n is None else src_n @ result.transform[:3, :3].T
         if aligned_n is not None and len(aligned_n) != len(result.aligned):
             aligned_n = None  # rows with NaNs were dropped
         cloud_io.write_cloud(args.out_aligned, result.aligned, aligned_n)
     if args.plot:
-        plot_alignment(args.plot, src, ref, result.aligned)
+        from rpmnet_jax.cli import plots
+        plots.plot_alignment(args.plot, src, ref, result.aligned)
     return 0
 
 
 def entry() -> None:
-    from rpmnet_jax import runtime
+    from rpmnet_jax.cli.register.register import runtime
     runtime.use_huge_pages()
     sys.exit(main())
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import os
 
-from rpmnet_jax import convert
+from rpmnet_jax.weights import convert
 
 WEIGHTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "weights")
 DEFAULT_WEIGHTS = os.path.join(WEIGHTS_DIR, "rpmnet_default.npz")
@@ -39,8 +39,29 @@ def load_params(path: str | None = None) -> dict:
     if not os.path.exists(path):
         raise FileNotFoundError(f"checkpoint not found: {path}")
     if os.path.isdir(path):
-        from rpmnet_jax import training
-        return training.restore_params(path)
+        return restore_params(path)
     if path.endswith((".npz", ".pth", ".pt", ".tar")):
         return convert.params_from_torch(path)
     raise ValueError(f"unknown checkpoint format {path!r}: expected an orbax directory, .npz or .pth")
+
+
+def restore_params(path: str) -> dict:
+    """Parameters from a training workdir, its ``checkpoints/{best,latest}`` folder, or a step folder."""
+    import orbax.checkpoint as ocp  # only for orbax folders: loading an .npz never pays for it
+
+    path = os.path.abspath(path)
+    candidates = [os.path.join(path, "checkpoints", "best"), os.path.join(path, "checkpoints", "latest"),
+                  os.path.join(path, "best"), os.path.join(path, "latest"), path]
+    for folder in candidates:
+        if not os.path.isdir(folder):
+            continue
+        mngr = ocp.CheckpointManager(folder)
+        try:
+            step = mngr.best_step() if folder.endswith("best") else mngr.latest_step()
+            step = step if step is not None else mngr.latest_step()
+            if step is not None:
+                restored = mngr.restore(step, args=ocp.args.StandardRestore())
+                return restored.get("ema", restored["params"])  # the EMA is what validation chose
+        finally:
+            mngr.close()
+    raise FileNotFoundError(f"no orbax checkpoint found under {path}")

@@ -10,9 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from rpmnet_jax import grouping, procrustes, se3, sinkhorn
+from rpmnet_jax import registration
+from rpmnet_jax.ops import grouping
+from rpmnet_jax.ops import se3
+from rpmnet_jax.ops import sinkhorn
 
-_EPS = 1e-5
 
 
 def identity(src, ref):
@@ -36,9 +38,7 @@ def classical_rpm(src_xyz, ref_xyz, beta0: float = 0.1, beta_final: float = 1000
         moved = se3.apply(transform, src_xyz)
         dist = grouping.square_distance(moved, ref_xyz)
         perm = jnp.exp(sinkhorn.log_sinkhorn(-beta * (dist - alpha), sk_iters, True))
-        row_sum = jnp.sum(perm, axis=2)
-        target = (perm @ ref_xyz) / (row_sum[..., None] + _EPS)
-        new = procrustes.weighted_procrustes(src_xyz, target, row_sum)
+        new, _, _ = registration.soft_procrustes(perm, src_xyz, ref_xyz)
         return new, new
 
     _, transforms = lax.scan(step, se3.identity((src_xyz.shape[0],), src_xyz.dtype), betas)

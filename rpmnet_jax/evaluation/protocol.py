@@ -8,10 +8,12 @@ import math
 import os
 import time
 
-import jax
 import numpy as np
 
-from rpmnet_jax import baselines, data, loader, metrics, registration
+from rpmnet_jax import data, registration
+from rpmnet_jax.evaluation import baselines
+from rpmnet_jax.data import loader
+from rpmnet_jax.evaluation import metrics
 from rpmnet_jax import config as config_lib
 
 METHODS = ("rpmnet", "icp", "fgr", "rpm", "identity")
@@ -19,8 +21,8 @@ CSV_COLUMNS = ("idx", "label", "r_mse", "r_mae", "t_mse", "t_mae", "err_r_deg", 
 
 
 def _rpmnet_fn(params, cfg, num_iters):
-    fn = jax.jit(lambda p, s, r: registration.register(p, s, r, cfg, num_iters=num_iters).transforms)
-    return lambda s, r: np.swapaxes(np.asarray(fn(params, s, r)), 0, 1)  # (B, I, 3, 4)
+    fn = registration.jitted(cfg, num_iters)
+    return lambda s, r: np.swapaxes(np.asarray(fn(params, s, r).transforms), 0, 1)  # (B, I, 3, 4)
 
 
 def method_fn(name: str, params=None, cfg: config_lib.RPMNetConfig | None = None, num_iters: int = 5):

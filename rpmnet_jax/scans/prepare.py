@@ -1,4 +1,4 @@
-"""Register your own point clouds: any units, any size, normals optional.
+"""Preparing people's clouds for the network: cleaning, centring, scaling, downsampling, normals.
 
 Each cloud is centred on its own centroid (or both on their common one, ``centering="common"``) and both
 are scaled by one common factor into the unit sphere the model was trained on, downsampled, registered,
@@ -12,20 +12,10 @@ from __future__ import annotations
 import warnings
 from typing import NamedTuple
 
-import jax
 import numpy as np
 
-from rpmnet_jax import config as config_lib
-from rpmnet_jax import normals as normals_lib
-from rpmnet_jax import pretrained, registration
-
-
-class Alignment(NamedTuple):
-    transform: np.ndarray  # (4, 4): maps source points onto the reference, caller's units
-    aligned: np.ndarray  # (N, 3): the full source cloud moved by ``transform``
-    transforms: np.ndarray  # (I, 4, 4): per-iteration transforms, caller's units
-    confidence: float  # mean inlier mass of the last match matrix, in [0, 1]
-    num_points: tuple[int, int]  # points used for source and reference
+from rpmnet_jax.scans import normals as normals_lib
+from rpmnet_jax.ops import se3
 
 
 def _clean(name: str, points, normals):
@@ -77,29 +67,15 @@ def _fps(points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     return np.sort(chosen)
 
 
-def _to_4x4(t34: np.ndarray) -> np.ndarray:
-    out = np.zeros(t34.shape[:-2] + (4, 4))
-    out[..., :3, :] = t34
-    out[..., 3, 3] = 1.0
-    return out
-
-
-_JITTED = {}
-
-
-def _register_fn(cfg, num_iters):
-    key = (cfg, num_iters)
-    if key not in _JITTED:
-        _JITTED[key] = jax.jit(lambda p, s, r: registration.register(p, s, r, cfg, num_iters=num_iters))
-    return _JITTED[key]
-
-
 class PreparedPair(NamedTuple):
     """A pair normalised for the model, and how to map a unit-sphere answer back to the caller's units."""
 
     src6: np.ndarray  # (1, J, 6) float32: centred, scaled, downsampled source xyz + unit normals
     ref6: np.ndarray  # (1, K, 6) float32
     src: np.ndarray  # (N, 3) the cleaned full source, caller's units
+    ref: np.ndarray  # (M, 3) the cleaned full reference, caller's units
+    src_normals: np.ndarray | None  # (N, 3) unit normals of ``src`` when given (and not re-estimated)
+    ref_normals: np.ndarray | None  # (M, 3)
     c_src: np.ndarray  # (3,) source centre
     c_ref: np.ndarray  # (3,) reference centre
     scale: float  # common scale: unit-sphere length = caller's length / scale
@@ -110,7 +86,11 @@ class PreparedPair(NamedTuple):
         rot = t_unit[..., :3]
         # ref = c_ref + s * (R (src - c_src) / s + t) = R src + (s t + c_ref - R c_src)
         trans = self.scale * t_unit[..., 3] + self.c_ref - rot @ self.c_src
-        return _to_4x4(np.concatenate([rot, trans[..., None]], axis=-1))
+        return se3.to_homogeneous(np.concatenate([rot, trans[..., None]], axis=-1))
+
+    def to_unit(self, points: np.ndarray, which: str) -> np.ndarray:
+        """Caller's-units points ``(N, 3)`` of the ``"src"`` or ``"ref"`` cloud → the normalised frame."""
+        return (points - (self.c_src if which == "src" else self.c_ref)) / self.scale
 
 
 def prepare_pair(src_points, ref_points, src_normals=None, ref_normals=None, *, num_points: int = 1024,
@@ -118,7 +98,7 @@ def prepare_pair(src_points, ref_points, src_normals=None, ref_normals=None, *, 
                  centering: str = "separate") -> PreparedPair:
     """Cleans, centres, scales into the unit sphere, downsamples and (where missing) estimates normals.
 
-    ``src_points (N, 3)``, ``ref_points (M, 3)``; see :func:`align` for the options.
+    ``src_points (N, 3)``, ``ref_points (M, 3)``; see :func:`rpmnet_jax.align` for the options.
     """
     if num_points < 3:
         raise ValueError(f"num_points must be >= 3, got {num_points}")
@@ -143,30 +123,4 @@ def prepare_pair(src_points, ref_points, src_normals=None, ref_normals=None, *, 
     n_ref = ref_n[i_ref] if ref_n is not None else normals_lib.estimate_normals(ref_s)
     src6 = np.concatenate([src_s, n_src], 1)[None].astype(np.float32)
     ref6 = np.concatenate([ref_s, n_ref], 1)[None].astype(np.float32)
-    return PreparedPair(src6, ref6, src, c_src, c_ref, scale)
-
-
-def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
-          num_points: int = 1024, num_iters: int = 5, sampling: str = "random", seed: int = 0,
-          reestimate_normals: bool = False, centering: str = "separate",
-          cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
-    """Rigidly aligns ``src_points (N, 3)`` onto ``ref_points (M, 3)``.
-
-    Normals (``(N, 3)``, any length > 0) are estimated when missing or when ``reestimate_normals``.
-    ``checkpoint``: orbax dir, ``.npz`` or official ``.pth``; default the shipped model (or pass
-    ``params``). ``sampling``: ``random`` or ``fps`` down to ``num_points`` per cloud. ``centering``:
-    ``separate`` (each cloud on its centroid) or ``common`` (both on their joint centroid).
-    """
-    if num_iters < 1:
-        raise ValueError(f"num_iters must be >= 1, got {num_iters}")
-    pair = prepare_pair(src_points, ref_points, src_normals, ref_normals, num_points=num_points,
-                        sampling=sampling, seed=seed, reestimate_normals=reestimate_normals, centering=centering)
-    params = params if params is not None else pretrained.load_params(checkpoint)
-    cfg = cfg or config_lib.RPMNetConfig()
-    reg = _register_fn(cfg, int(num_iters))(params, pair.src6, pair.ref6)
-    transforms = pair.to_callers_units(np.asarray(reg.transforms[:, 0]))  # (I, 4, 4)
-    final = transforms[-1]
-    aligned = pair.src @ final[:3, :3].T + final[:3, 3]
-    perm = np.asarray(reg.perm_matrices[-1, 0])
-    confidence = float(0.5 * (perm.sum(axis=1).mean() + perm.sum(axis=0).mean()))
-    return Alignment(final, aligned, transforms, confidence, (pair.src6.shape[1], pair.ref6.shape[1]))
+    return PreparedPair(src6, ref6, src, ref, src_n, ref_n, c_src, c_ref, scale)

@@ -2,7 +2,7 @@
 
 import jax.numpy as jnp
 
-from rpmnet_jax import grouping
+from rpmnet_jax.ops import grouping
 
 
 def safe_norm(x, axis=-1):

@@ -6,15 +6,13 @@ Layer names carry the index of the matching layer in the official ``nn.Sequentia
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import flax.linen as nn
 
 from rpmnet_jax import config as config_lib
-
-_GN_EPS = 1e-5  # torch.nn.GroupNorm default
+from rpmnet_jax.nn import fused_mlp_max
+from rpmnet_jax.nn.group_norm import GroupNorm
 
 
 def _uniform(bound: float):
@@ -27,84 +25,6 @@ def _dense(fan_in: int, features: int, name: str) -> nn.Dense:
     """Dense layer initialised like torch Conv/Linear: U(±1/sqrt(fan_in)) for kernel and bias."""
     bound = 1.0 / fan_in**0.5
     return nn.Dense(features, kernel_init=_uniform(bound), bias_init=_uniform(bound), name=name)
-
-
-def _group_stats(x, groups: int, eps: float):
-    """Per-sample, per-group mean and 1/std ``(B, G)`` of ``x (B, ..., C)``.
-
-    Two cheap reductions (channel means, then centred channel variances; neither materialises a copy of
-    ``x``), pooled per group with the parallel-variance formula.
-    """
-    b, c = x.shape[0], x.shape[-1]
-    rows = x.reshape(b, -1, c)
-    mean_c = jnp.mean(rows, axis=1)
-    var_c = jnp.mean(jnp.square(rows - mean_c[:, None, :]), axis=1)
-    return pool_group_stats(mean_c, var_c, groups, eps)
-
-
-def pool_group_stats(mean_c, var_c, groups: int, eps: float):
-    """Group mean and 1/std ``(B, G)`` from per-channel means and variances ``(B, C)``."""
-    b = mean_c.shape[0]
-    mean_c = mean_c.reshape(b, groups, -1)
-    var_c = var_c.reshape(b, groups, -1)
-    mean_g = jnp.mean(mean_c, axis=-1)
-    var_g = jnp.mean(var_c + (mean_c - mean_g[..., None]) ** 2, axis=-1)
-    return mean_g, jax.lax.rsqrt(var_g + eps)
-
-
-def _per_channel(v_BxG, c: int, ndim: int):
-    """``(B, G)`` group values → ``(B, 1, ..., 1, C)`` broadcastable against a rank-``ndim`` input."""
-    b, g = v_BxG.shape
-    return jnp.repeat(v_BxG, c // g, axis=-1).reshape((b,) + (1,) * (ndim - 2) + (c,))
-
-
-@functools.partial(jax.custom_vjp, nondiff_argnums=(3, 4))
-def group_norm(x, scale, bias, groups: int, eps: float = _GN_EPS):
-    """``torch.nn.GroupNorm`` for channels-last ``x (B, ..., C)``: statistics per sample and channel group
-    over all non-batch axes; ``scale, bias (C,)``. Hand-written backward (the stable textbook form)."""
-    return _group_norm_fwd(x, scale, bias, groups, eps)[0]
-
-
-def _group_norm_fwd(x, scale, bias, groups, eps):
-    c = x.shape[-1]
-    mean_g, inv_g = _group_stats(x, groups, eps)
-    inv = _per_channel(inv_g, c, x.ndim)
-    mean = _per_channel(mean_g, c, x.ndim)
-    y = x * (inv * scale) + (bias - mean * inv * scale)
-    return y, (x, scale, mean_g, inv_g)
-
-
-def _group_norm_bwd(groups, eps, res, dy):
-    x, scale, mean_g, inv_g = res
-    b, c = x.shape[0], x.shape[-1]
-    inv = _per_channel(inv_g, c, x.ndim)
-    xhat = (x - _per_channel(mean_g, c, x.ndim)) * inv
-    axes = tuple(range(x.ndim - 1))
-    dscale = jnp.sum(dy * xhat, axis=axes)
-    dbias = jnp.sum(dy, axis=axes)
-    g = dy * scale
-    # group means of g and g * xhat over every non-batch element of the group
-    rows = lambda t: t.reshape(b, -1, groups, c // groups)
-    mean_g_dy = jnp.mean(rows(g), axis=(1, 3))
-    mean_g_dyx = jnp.mean(rows(g * xhat), axis=(1, 3))
-    dx = inv * (g - _per_channel(mean_g_dy, c, x.ndim) - xhat * _per_channel(mean_g_dyx, c, x.ndim))
-    return dx, dscale, dbias
-
-
-group_norm.defvjp(_group_norm_fwd, _group_norm_bwd)
-
-
-class GroupNorm(nn.Module):
-    """GroupNorm layer (parameters ``scale``, ``bias`` of shape ``(C,)``); see :func:`group_norm`."""
-
-    groups: int
-
-    @nn.compact
-    def __call__(self, x):
-        c = x.shape[-1]
-        scale = self.param("scale", nn.initializers.ones, (c,))
-        bias = self.param("bias", nn.initializers.zeros, (c,))
-        return group_norm(x, scale, bias, self.groups)
 
 
 def _group_norm(groups: int, name: str) -> GroupNorm:
@@ -139,7 +59,7 @@ class FeatureNet(nn.Module):
     """Hybrid-feature PointNet: per-neighbour MLP, max over neighbours, MLP, L2 normalisation.
 
     ``(B, N, k, C_raw)`` → ``(B, N, feature_dim)`` unit vectors. With ``fused`` the per-neighbour part runs
-    as one operation with a lean hand-written backward (:func:`rpmnet_jax.prepool.mlp_max`).
+    as one operation with a lean hand-written backward (:func:`rpmnet_jax.nn.fused_mlp_max.mlp_max`).
     """
 
     raw_dim: int = 10
@@ -148,15 +68,15 @@ class FeatureNet(nn.Module):
 
     @nn.compact
     def __call__(self, x_BxNxKxC):
-        from rpmnet_jax import prepool  # prepool builds on this module's GroupNorm helpers
+        from rpmnet_jax.nn import fused_mlp_max
 
         d = self.feature_dim
         layers = []
         for i, (fan_in, out) in enumerate([(self.raw_dim, d), (d, d), (d, 2 * d)]):
             kernel, bias = _DenseParams(fan_in, out, name=f"prepool_{3 * i}")()
             scale, shift = _NormParams(out, name=f"prepool_{3 * i + 1}")()
-            layers.append(prepool.Layer(kernel, bias, scale, shift))
-        pool = prepool.mlp_max if self.fused else prepool.mlp_max_reference
+            layers.append(fused_mlp_max.Layer(kernel, bias, scale, shift))
+        pool = fused_mlp_max.mlp_max if self.fused else fused_mlp_max.mlp_max_reference
         h_BxNxC = pool(x_BxNxKxC, tuple(layers), 8)
         h_BxNxC = nn.relu(_group_norm(8, "postpool_1")(_dense(2 * d, 2 * d, "postpool_0")(h_BxNxC)))
         h_BxNxC = nn.relu(_group_norm(8, "postpool_4")(_dense(2 * d, d, "postpool_3")(h_BxNxC)))

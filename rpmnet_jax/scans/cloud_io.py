@@ -25,8 +25,12 @@ def _ext(path: str) -> str:
 def read_cloud(path: str) -> tuple[np.ndarray, np.ndarray | None]:
     """``points (N, 3)`` float64 and ``normals (N, 3)`` or ``None`` from a file."""
     ext = _ext(path)
+    if os.path.isdir(path):
+        raise CloudError(f"{path}: is a folder, not a point-cloud file")
     if not os.path.isfile(path):
         raise CloudError(f"{path}: no such file")
+    if not os.access(path, os.R_OK):
+        raise CloudError(f"{path}: permission denied")
     try:
         if ext == ".ply":
             arr = _read_ply(path)
@@ -55,7 +59,7 @@ def _read_ply(path):
     try:
         from plyfile import PlyData
     except ImportError:
-        raise CloudError("reading PLY needs plyfile: pip install 'rpmnet_jax[io]'") from None
+        raise CloudError("reading PLY needs plyfile (a dependency of rpmnet_jax): pip install plyfile") from None
     with warnings.catch_warnings():  # ASCII files with an empty face list make NumPy warn
         warnings.filterwarnings("ignore", message="loadtxt: input contained no data")
         vertex = PlyData.read(path)["vertex"].data

@@ -24,7 +24,7 @@ from typing import NamedTuple, Sequence
 import jax
 import jax.numpy as jnp
 
-from rpmnet_jax import model
+from rpmnet_jax.nn import group_norm as gn
 
 
 class Layer(NamedTuple):
@@ -36,18 +36,12 @@ class Layer(NamedTuple):
     shift: jax.Array  # (C_out,) GroupNorm bias
 
 
-def _normalise(z, mean_g, inv_g, groups):
-    """``xhat`` of pre-norm activations ``z (B, N, k, C)`` given group stats ``(B, G)``."""
-    c = z.shape[-1]
-    return (z - model._per_channel(mean_g, c, z.ndim)) * model._per_channel(inv_g, c, z.ndim)
-
-
-def mlp_max_layerwise(x, layers: Sequence[Layer], groups: int = 8, eps: float = model._GN_EPS):
+def mlp_max_layerwise(x, layers: Sequence[Layer], groups: int = 8, eps: float = gn.EPS):
     """The per-layer formulation in torch's arithmetic; differentiated by JAX (float32 gradients match the
     official ones to 1e-4)."""
     h = x
     for layer in layers:
-        h = jax.nn.relu(model.group_norm(h @ layer.kernel + layer.bias, layer.scale, layer.shift, groups, eps))
+        h = jax.nn.relu(gn.group_norm(h @ layer.kernel + layer.bias, layer.scale, layer.shift, groups, eps))
     return jnp.max(h, axis=2)
 
 
@@ -66,14 +60,14 @@ def _inference_forward(x, layers: Sequence[Layer], groups: int, eps: float):
         rows = u.reshape(b, -1, c)
         mean_u = jnp.mean(rows, axis=1)
         var_c = jnp.mean(jnp.square(rows - mean_u[:, None, :]), axis=1)
-        mean_g, inv_g = model.pool_group_stats(mean_u + layer.bias, var_c, groups, eps)
-        a = model._per_channel(inv_g, c, u.ndim) * layer.scale
-        h = jax.nn.relu(u * a + (layer.bias * a + layer.shift - model._per_channel(mean_g, c, u.ndim) * a))
+        mean_g, inv_g = gn.pool_group_stats(mean_u + layer.bias, var_c, groups, eps)
+        a = gn.per_channel(inv_g, c, u.ndim) * layer.scale
+        h = jax.nn.relu(u * a + (layer.bias * a + layer.shift - gn.per_channel(mean_g, c, u.ndim) * a))
     return jnp.max(h, axis=2)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
-def mlp_max_reference(x, layers: Sequence[Layer], groups: int = 8, eps: float = model._GN_EPS):
+def mlp_max_reference(x, layers: Sequence[Layer], groups: int = 8, eps: float = gn.EPS):
     """:func:`mlp_max_layerwise` with its JAX-derived gradients; evaluated without a gradient it runs the
     leaner :func:`_inference_forward`."""
     return _inference_forward(x, layers, groups, eps)
@@ -94,22 +88,22 @@ mlp_max_reference.defvjp(_reference_fwd, _reference_bwd)
 def _activate(z, mean_g, inv_g, layer: Layer):
     """``relu(GroupNorm(z))`` in torch's arithmetic: ``z * (inv * scale) + (shift - mean * inv * scale)``."""
     c = z.shape[-1]
-    a = model._per_channel(inv_g, c, z.ndim) * layer.scale
-    return jax.nn.relu(z * a + (layer.shift - model._per_channel(mean_g, c, z.ndim) * a))
+    a = gn.per_channel(inv_g, c, z.ndim) * layer.scale
+    return jax.nn.relu(z * a + (layer.shift - gn.per_channel(mean_g, c, z.ndim) * a))
 
 
 def _forward(x, layers, groups, eps):
     h, saved = x, []
     for layer in layers:
         z = h @ layer.kernel + layer.bias
-        mean_g, inv_g = model._group_stats(z, groups, eps)
+        mean_g, inv_g = gn.group_stats(z, groups, eps)
         h = _activate(z, mean_g, inv_g, layer)
         saved.append((z, mean_g, inv_g, h > 0))
     return h, saved
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
-def mlp_max(x, layers: Sequence[Layer], groups: int = 8, eps: float = model._GN_EPS):
+def mlp_max(x, layers: Sequence[Layer], groups: int = 8, eps: float = gn.EPS):
     """``x (B, N, k, C_in)`` → ``max_k relu(GN(... relu(GN(x W1 + b1)) ...)) (B, N, C_out)``.
 
     Without a gradient this runs :func:`_inference_forward`."""
@@ -131,17 +125,10 @@ def _mlp_max_bwd(groups, eps, res, d_out):
     grads = []
     for i in range(len(layers) - 1, -1, -1):
         layer, (z, mean_g, inv_g, active) = layers[i], saved[i]
-        b, c = z.shape[0], z.shape[-1]
-        xhat = _normalise(z, mean_g, inv_g, groups)
-        dy = jnp.where(active, dh, 0.0)
+        c = z.shape[-1]
         axes = tuple(range(z.ndim - 1))
-        d_scale, d_shift = jnp.sum(dy * xhat, axis=axes), jnp.sum(dy, axis=axes)
-        g = dy * layer.scale
-        rows = lambda t: t.reshape(b, -1, groups, c // groups)
-        m_g = jnp.mean(rows(g), axis=(1, 3))
-        m_gx = jnp.mean(rows(g * xhat), axis=(1, 3))
-        dz = model._per_channel(inv_g, c, z.ndim) * (
-            g - model._per_channel(m_g, c, z.ndim) - xhat * model._per_channel(m_gx, c, z.ndim))
+        dz, d_scale, d_shift = gn.backward(jnp.where(active, dh, 0.0), gn.normalise(z, mean_g, inv_g), inv_g,
+                                           layer.scale, groups)
         if i == 0:
             h_in = x
         else:

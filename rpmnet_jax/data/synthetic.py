@@ -13,6 +13,8 @@ import os
 import h5py
 import numpy as np
 
+from rpmnet_jax.ops import se3
+
 FAMILIES = ("superquadric", "box", "cylinder", "torus", "table")
 NUM_VARIANTS = 8
 CATEGORY_NAMES = [f"{FAMILIES[c % 5]}_{c // 5}" for c in range(5 * NUM_VARIANTS)]
@@ -116,11 +118,8 @@ _GENERATORS = {"superquadric": superquadric, "box": box, "cylinder": cylinder, "
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
-    q = rng.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    """A uniformly random rotation ``(3, 3)`` (normalised Gaussian quaternion)."""
+    return se3.quaternion_to_matrix(rng.normal(size=4))
 
 
 def sample_shape(rng: np.random.Generator, label: int, n: int = 2048) -> np.ndarray:
@@ -160,3 +159,10 @@ def write_dataset(out_dir, num_train: int = 400, num_test: int = 100, seed: int 
     with open(os.path.join(folder, "shape_names.txt"), "w") as f:
         f.write("\n".join(CATEGORY_NAMES) + "\n")
     return folder
+
+
+def ensure_dataset(out_dir, num_train: int = 400, num_test: int = 100, seed: int = 0) -> str:
+    """The synthetic set at ``out_dir`` (written there first if it is not there yet); returns ``out_dir``."""
+    if not os.path.isfile(os.path.join(os.fspath(out_dir), "modelnet40_ply_hdf5_2048", "shape_names.txt")):
+        write_dataset(out_dir, num_train, num_test, seed=seed)
+    return os.fspath(out_dir)

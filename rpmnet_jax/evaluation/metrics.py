@@ -6,22 +6,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from rpmnet_jax.ops import se3
+
 
 def _xyz(points) -> np.ndarray:
     return np.asarray(points, np.float64)[..., :3]
-
-
-def _inverse(t):
-    rot_t = np.swapaxes(t[..., :3, :3], -1, -2)
-    return np.concatenate([rot_t, -rot_t @ t[..., :3, 3:4]], axis=-1)
-
-
-def _compose(a, b):
-    return np.concatenate([a[..., :3, :3] @ b[..., :3, :3], a[..., :3, :3] @ b[..., :3, 3:4] + a[..., :3, 3:4]], -1)
-
-
-def _apply(t, xyz):
-    return xyz @ np.swapaxes(t[..., :3, :3], -1, -2) + t[..., None, :3, 3]
 
 
 def euler_xyz_deg(rot) -> np.ndarray:
@@ -49,12 +38,11 @@ def registration_metrics(pred, gt, points_src, points_ref, points_raw) -> dict:
     src, ref, raw = _xyz(points_src), _xyz(points_ref), _xyz(points_raw)
     r_diff = euler_xyz_deg(gt[:, :, :3]) - euler_xyz_deg(pred[:, :, :3])
     t_diff = gt[:, :, 3] - pred[:, :, 3]
-    residual = _compose(_inverse(gt), pred)
-    trace = residual[:, 0, 0] + residual[:, 1, 1] + residual[:, 2, 2]
-    err_r = np.degrees(np.arccos(np.clip(0.5 * (trace - 1), -1.0, 1.0)))
+    residual = se3.compose(se3.inverse(gt), pred)
+    err_r = se3.rotation_angle_deg(residual[:, :, :3])
     err_t = np.linalg.norm(residual[:, :, 3], axis=-1)
-    src_moved = _apply(pred, src)
-    src_clean = _apply(_compose(pred, _inverse(gt)), raw)
+    src_moved = se3.apply(pred, src)
+    src_clean = se3.apply(se3.compose(pred, se3.inverse(gt)), raw)
     chamfer = np.array([_mean_min_sq_dist(src_moved[b], raw[b]) + _mean_min_sq_dist(ref[b], src_clean[b])
                         for b in range(pred.shape[0])])
     return {"r_mse": np.mean(r_diff**2, 1), "r_mae": np.mean(np.abs(r_diff), 1), "t_mse": np.mean(t_diff**2, 1),

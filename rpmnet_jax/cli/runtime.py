@@ -1,4 +1,5 @@
-"""Process set-up for the command-line tools: large pages for XLA's CPU buffers.
+"""Process set-up for the command-line tools: library log messages on the terminal; large pages for XLA's CPU
+buffers.
 
 RPM-Net's activations are ``(B, N, 64, C)`` tensors of hundreds of MB; XLA's CPU runtime allocates them
 afresh through ``malloc`` and the first touch of every 4 KiB page faults. With glibc's ``hugetlb`` tunable
@@ -9,6 +10,7 @@ read only at process start, so a CLI re-executes itself once with it set.
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 
@@ -42,3 +44,20 @@ def use_huge_pages() -> None:
     sys.stdout.flush()
     sys.stderr.flush()
     os.execve(sys.executable, [sys.executable] + list(sys.orig_argv[1:]), env)
+
+
+def show_library_logs(level: int = logging.INFO) -> None:
+    """Prints the library's log records (``rpmnet_jax.*``: resumed runs, validation results) on stderr.
+
+    The handler sits on the ``rpmnet_jax`` logger and does not propagate, so a root handler installed by
+    another library on import (absl's swallows INFO records) neither hides nor duplicates them. Only CLIs
+    call this; importing the library changes no logging state.
+    """
+    logger = logging.getLogger("rpmnet_jax")
+    if not any(getattr(h, "_rpmnet_cli", False) for h in logger.handlers):
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s", "%H:%M:%S"))
+        handler._rpmnet_cli = True
+        logger.addHandler(handler)
+    logger.setLevel(level)
+    logger.propagate = False

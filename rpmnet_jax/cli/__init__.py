@@ -1,0 +1,1 @@
+"""Command-line front ends: argument parsing, messages for people, process set-up. No library logic."""

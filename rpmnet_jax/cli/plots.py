@@ -1,0 +1,67 @@
+"""Figures of the command-line tools (matplotlib, headless)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _pyplot():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def plot_alignment(path: str, src, ref, aligned, max_points: int = 3000) -> None:
+    """Headless 3-D scatter of source (red), reference (blue) and aligned source (green)."""
+    plt = _pyplot()
+
+    rng = np.random.default_rng(0)
+    sub = lambda x: x[rng.choice(len(x), min(len(x), max_points), replace=False)]
+    fig = plt.figure(figsize=(10, 5))
+    for i, (title, clouds) in enumerate([("before", [(src, "tab:red", "source"), (ref, "tab:blue", "reference")]),
+                                         ("after", [(aligned, "tab:green", "aligned source"),
+                                                    (ref, "tab:blue", "reference")])]):
+        ax = fig.add_subplot(1, 2, i + 1, projection="3d")
+        for pts, colour, label in clouds:
+            s = sub(pts)
+            ax.scatter(s[:, 0], s[:, 1], s[:, 2], s=1, c=colour, label=label)
+        ax.set_title(title)
+        ax.legend(loc="upper left", markerscale=6, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_chamfer(path, curves: dict) -> None:
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for name, values in curves.items():
+        ax.plot(np.arange(1, len(values) + 1), values, marker="o", label=name)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("mean modified Chamfer distance")
+    ax.set_yscale("log")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_examples(path, samples, transforms) -> None:
+    plt = _pyplot()
+    n = len(samples)
+    fig = plt.figure(figsize=(4 * n, 4))
+    for i, (s, t) in enumerate(zip(samples, transforms)):
+        ax = fig.add_subplot(1, n, i + 1, projection="3d")
+        src, ref = s["points_src"][:, :3], s["points_ref"][:, :3]
+        t = np.asarray(t, np.float64)
+        moved = src @ t[:3, :3].T + t[:3, 3]
+        for pts, colour, label in ((src, "tab:red", "source"), (ref, "tab:blue", "reference"),
+                                   (moved, "tab:green", "aligned")):
+            ax.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=1, c=colour, label=label)
+        ax.set_title(f"pair {int(s['idx'])}")
+        ax.set_axis_off()
+    ax.legend(loc="lower right", markerscale=6, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

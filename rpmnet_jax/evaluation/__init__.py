@@ -1,0 +1,1 @@
+"""Evaluation: the paper's metrics, classical baselines, and running methods over a protocol split."""

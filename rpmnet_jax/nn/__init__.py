@@ -1,0 +1,1 @@
+"""The two PointNets (Flax) and their GroupNorm / fused per-neighbour MLP kernels."""

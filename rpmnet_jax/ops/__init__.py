@@ -1,0 +1,1 @@
+"""Pure jax.numpy building blocks: rigid transforms, grouping, point-pair features, Sinkhorn, Procrustes."""

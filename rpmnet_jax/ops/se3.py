@@ -1,0 +1,74 @@
+"""Rigid transforms stored as ``(*, 3, 4)`` matrices ``[R | t]``; any leading batch axes.
+
+The one set of rigid-transform helpers: they take JAX arrays (traceable, any dtype) or NumPy arrays (computed
+in NumPy, so float64 host-side metrics stay float64).
+"""
+
+import jax.numpy as jnp
+import numpy as np
+
+
+def _xp(*arrays):
+    return np if all(isinstance(a, np.ndarray) for a in arrays) else jnp
+
+
+def identity(batch_shape=(), dtype=jnp.float32):
+    """Identity transform of shape ``(*batch_shape, 3, 4)``."""
+    eye = jnp.eye(3, 4, dtype=dtype)
+    return jnp.broadcast_to(eye, tuple(batch_shape) + (3, 4))
+
+
+def apply(transform, xyz):
+    """Maps points ``xyz (*, N, 3)`` by ``transform (*, 3, 4)``: ``R x + t``."""
+    rot, trans = transform[..., :3, :3], transform[..., :3, 3]
+    return xyz @ _xp(transform, xyz).swapaxes(rot, -1, -2) + trans[..., None, :]
+
+
+def rotate(transform, vectors):
+    """Rotates direction vectors ``(*, N, 3)`` (normals, offsets) by the rotation of ``transform``."""
+    rot = transform[..., :3, :3]
+    return vectors @ _xp(transform, vectors).swapaxes(rot, -1, -2)
+
+
+def compose(a, b):
+    """``a ∘ b`` (apply ``b`` first) for ``(*, 3, 4)`` transforms."""
+    rot_a, t_a = a[..., :3, :3], a[..., :3, 3]
+    rot_b, t_b = b[..., :3, :3], b[..., :3, 3]
+    rot = rot_a @ rot_b
+    trans = (rot_a @ t_b[..., None])[..., 0] + t_a
+    return _xp(a, b).concatenate([rot, trans[..., None]], axis=-1)
+
+
+def inverse(transform):
+    """Inverse of a ``(*, 3, 4)`` rigid transform."""
+    xp = _xp(transform)
+    rot_t = xp.swapaxes(transform[..., :3, :3], -1, -2)
+    trans = -(rot_t @ transform[..., :3, 3:4])
+    return xp.concatenate([rot_t, trans], axis=-1)
+
+
+def to_homogeneous(transform):
+    """``(*, 3, 4)`` → ``(*, 4, 4)`` (a ``(*, 4, 4)`` input is returned as it is)."""
+    if transform.shape[-2] == 4:
+        return transform
+    xp = _xp(transform)
+    bottom = xp.broadcast_to(xp.asarray([0.0, 0.0, 0.0, 1.0], transform.dtype), transform.shape[:-2] + (1, 4))
+    return xp.concatenate([transform, bottom], axis=-2)
+
+
+def rotation_angle_deg(rot):
+    """Angle in degrees of rotations ``(*, 3, 3)`` (NumPy float64)."""
+    rot = np.asarray(rot, np.float64)
+    trace = rot[..., 0, 0] + rot[..., 1, 1] + rot[..., 2, 2]
+    return np.degrees(np.arccos(np.clip(0.5 * (trace - 1.0), -1.0, 1.0)))
+
+
+def quaternion_to_matrix(q):
+    """Rotation matrices ``(*, 3, 3)`` of quaternions ``q (*, 4)`` ordered ``(w, x, y, z)`` (normalised here)."""
+    xp = _xp(q)
+    q = q / xp.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = (q[..., i] for i in range(4))
+    rows = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    return xp.stack([xp.stack(r, axis=-1) for r in rows], axis=-2)

@@ -1,0 +1,1 @@
+"""Registering people's own clouds: normalisation, the network, file formats, normal estimation."""

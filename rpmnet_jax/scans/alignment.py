@@ -1,0 +1,196 @@
+"""Register your own point clouds: any units, any size, any orientation, normals optional.
+
+The pipeline around the paper's network (which itself is :func:`rpmnet_jax.register`, untouched):
+
+1. prepare: clean, centre each cloud, scale both into the unit sphere, sample ``num_points`` per cloud for the
+   network (:mod:`rpmnet_jax.scans.prepare`);
+2. start: ``init="local"`` runs the network once from the identity; ``init="global"`` runs it from the
+   rotation hypotheses of :mod:`rpmnet_jax.scans.global_search` in one batched call and keeps the
+   ``top_k`` answers with the best fitness; ``init="auto"`` (default) is local, and global only when the
+   refined local answer's fitness is below ``auto_fitness``;
+3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.scans.refine`) from
+   each start on denser samples of the caller's clouds (``refine_points`` source and ``4 × refine_points``
+   reference points, random); the answer with the best fitness wins; ``refine="none"`` returns the
+   network's answer as it is (the paper's method);
+4. score: fitness, inlier RMSE and correspondences of the answer on the full clouds, as Open3D's
+   ``evaluate_registration`` (:mod:`rpmnet_jax.scans.scoring`).
+
+``max_correspondence_distance`` (caller's units) is the inlier threshold of the score and the finest ICP
+gate; by default 2% of the clouds' common radius (the largest distance of a point from its cloud's centre),
+0.02 on the unit-sphere shapes the network was trained on.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from rpmnet_jax import config as config_lib
+from rpmnet_jax import registration
+from rpmnet_jax.scans import global_search, refine as refine_lib, scoring
+from rpmnet_jax.scans import normals as normals_lib
+from rpmnet_jax.scans.prepare import PreparedPair, prepare_pair
+from rpmnet_jax.weights import loading
+
+INITS = ("auto", "local", "global")
+REFINES = ("icp", "none")
+DEFAULT_RELATIVE_DISTANCE = 0.02
+
+
+class Alignment(NamedTuple):
+    transform: np.ndarray  # (4, 4): maps source points onto the reference, caller's units
+    aligned: np.ndarray  # (N, 3): the full source cloud moved by ``transform``
+    transforms: np.ndarray  # (I, 4, 4): the network's per-iteration transforms (of the chosen start)
+    confidence: float  # mean inlier mass of the network's last match matrix, in [0, 1]
+    num_points: tuple[int, int]  # points the network saw, source and reference
+    fitness: float  # fraction of source points with a reference point within max_correspondence_distance
+    inlier_rmse: float  # RMS distance of those pairs, caller's units
+    correspondences: np.ndarray  # (n, 2): (source index, reference index) of the inlier pairs
+    converged: bool  # the refinement met its tolerance (True for refine="none")
+    num_iterations: int  # refinement iterations (0 for refine="none")
+    max_correspondence_distance: float  # the threshold used, caller's units
+    init: str  # the start that won: "local" or "global"
+    timings: dict  # seconds per stage: prepare, network, global, refine, score, total
+
+
+def _sample(rng: np.random.Generator, n_total: int, n: int) -> np.ndarray:
+    return np.arange(n_total) if n_total <= n else np.sort(rng.choice(n_total, n, replace=False))
+
+
+class _DenseClouds(NamedTuple):
+    """Denser samples of both clouds in the normalised frame, for refinement and scoring of candidates."""
+
+    src: np.ndarray  # (n, 3)
+    ref: np.ndarray  # (m, 3)
+    ref_normals: np.ndarray  # (m, 3)
+    ref_tree: cKDTree
+
+
+def _dense_clouds(pair: PreparedPair, refine_points: int, seed: int) -> _DenseClouds:
+    rng = np.random.default_rng(seed + 1)
+    i_src = _sample(rng, len(pair.src), refine_points)
+    i_ref = _sample(rng, len(pair.ref), 4 * refine_points)
+    src = pair.to_unit(pair.src[i_src], "src")
+    ref = pair.to_unit(pair.ref[i_ref], "ref")
+    normals = pair.ref_normals[i_ref] if pair.ref_normals is not None else normals_lib.estimate_normals(ref)
+    return _DenseClouds(src, ref, normals, cKDTree(ref))
+
+
+def _to4x4(t34: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :] = t34
+    return out
+
+
+def _fitness(dense: _DenseClouds, t44: np.ndarray, max_distance: float) -> tuple[float, float]:
+    s = scoring.evaluate_registration(dense.src, dense.ref, t44, max_distance, ref_tree=dense.ref_tree)
+    return s.fitness, s.inlier_rmse
+
+
+def _better(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    """Is score ``a = (fitness, rmse)`` better than ``b``: more fitness, then less RMSE."""
+    return a[0] > b[0] + 1e-9 or (abs(a[0] - b[0]) <= 1e-9 and a[1] < b[1])
+
+
+def _check_options(init, refine, num_iters, top_k, refine_points, max_correspondence_distance, auto_fitness):
+    if init not in INITS:
+        raise ValueError(f"init must be one of {INITS}, got {init!r}")
+    if refine not in REFINES:
+        raise ValueError(f"refine must be one of {REFINES}, got {refine!r}")
+    if num_iters < 1:
+        raise ValueError(f"num_iters must be >= 1, got {num_iters}")
+    if top_k < 1:
+        raise ValueError(f"top_k must be >= 1, got {top_k}")
+    if refine_points < 3:
+        raise ValueError(f"refine_points must be >= 3, got {refine_points}")
+    if max_correspondence_distance is not None and not max_correspondence_distance > 0:
+        raise ValueError(f"max_correspondence_distance must be > 0, got {max_correspondence_distance}")
+    if not 0.0 <= auto_fitness <= 1.0:
+        raise ValueError(f"auto_fitness must be in [0, 1], got {auto_fitness}")
+
+
+def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
+          num_points: int = 1024, num_iters: int = 5, sampling: str = "random", seed: int = 0,
+          reestimate_normals: bool = False, centering: str = "separate", init: str = "auto",
+          refine: str = "icp", max_correspondence_distance: float | None = None, hypotheses: str = "icosahedral",
+          top_k: int = 3, refine_points: int = 5000, auto_fitness: float = 0.5,
+          cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
+    """Rigidly aligns ``src_points (N, 3)`` onto ``ref_points (M, 3)``; see the module docstring.
+
+    Normals (``(N, 3)``, any length > 0) are estimated when missing or when ``reestimate_normals``.
+    ``checkpoint``: orbax dir, ``.npz`` or official ``.pth``; default the shipped model (or pass ``params``).
+    ``sampling``: ``random`` or ``fps`` down to ``num_points`` per cloud for the network. ``centering``:
+    ``separate`` (each cloud on its centroid) or ``common`` (both on their joint centroid). ``hypotheses``:
+    ``icosahedral`` (60) or ``octahedral`` (24) starts for the global search. Deterministic for a ``seed``.
+    """
+    _check_options(init, refine, num_iters, top_k, refine_points, max_correspondence_distance, auto_fitness)
+    t_start = time.perf_counter()
+    timings = {"prepare": 0.0, "network": 0.0, "global": 0.0, "refine": 0.0, "score": 0.0}
+    pair = prepare_pair(src_points, ref_points, src_normals, ref_normals, num_points=num_points,
+                        sampling=sampling, seed=seed, reestimate_normals=reestimate_normals, centering=centering)
+    params = params if params is not None else loading.load_params(checkpoint)
+    cfg = cfg or config_lib.RPMNetConfig()
+    max_dist = (max_correspondence_distance if max_correspondence_distance is not None
+                else DEFAULT_RELATIVE_DISTANCE * pair.scale)
+    max_dist_unit = max_dist / pair.scale
+    dense = _dense_clouds(pair, refine_points, seed) if (refine == "icp" or init != "local") else None
+    timings["prepare"] = time.perf_counter() - t_start
+
+    # candidates: (name, network transforms (I, 3, 4), confidence)
+    candidates = []
+    if init in ("local", "auto"):
+        t0 = time.perf_counter()
+        reg = registration.jitted(cfg, int(num_iters))(params, pair.src6, pair.ref6)
+        perm = np.asarray(reg.perm_matrices[-1, 0])
+        candidates.append(("local", np.asarray(reg.transforms[:, 0], np.float64), _confidence(perm)))
+        timings["network"] = time.perf_counter() - t0
+
+    def refined(cands):
+        out = []
+        t0 = time.perf_counter()
+        for name, ts, conf in cands:
+            start = _to4x4(ts[-1])
+            if refine == "icp":
+                r = refine_lib.point_to_plane_icp(dense.src, dense.ref, dense.ref_normals, start, max_dist_unit,
+                                                  ref_tree=dense.ref_tree)
+                final, converged, iters = r.transform, r.converged, r.num_iterations
+            else:
+                final, converged, iters = start, True, 0
+            score = _fitness(dense, final, max_dist_unit) if dense is not None else (1.0, 0.0)
+            out.append((score, name, ts, conf, final, converged, iters))
+        timings["refine"] += time.perf_counter() - t0
+        return out
+
+    results = refined(candidates)
+    if init == "global" or (init == "auto" and results[0][0][0] < auto_fitness):
+        t0 = time.perf_counter()
+        starts = global_search.initial_transforms(hypotheses)
+        reg = registration.jitted_from(cfg, int(num_iters))(params, pair.src6, pair.ref6, starts)
+        ts = np.swapaxes(np.asarray(reg.transforms, np.float64), 0, 1)  # (H, I, 3, 4)
+        perms = np.asarray(reg.perm_matrices[-1])
+        scores = [_fitness(dense, _to4x4(t[-1]), max_dist_unit) for t in ts]
+        order = sorted(range(len(ts)), key=lambda h: (-scores[h][0], scores[h][1]))[:top_k]
+        timings["global"] = time.perf_counter() - t0
+        results += refined([("global", ts[h], _confidence(perms[h])) for h in order])
+
+    best = results[0]
+    for r in results[1:]:
+        if _better(r[0], best[0]):
+            best = r
+    _, name, net_ts, confidence, final_unit, converged, iters = best
+    transform = pair.to_callers_units(final_unit[:3])
+    t0 = time.perf_counter()
+    score = scoring.evaluate_registration(pair.src, pair.ref, transform, max_dist)
+    timings["score"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    aligned = pair.src @ transform[:3, :3].T + transform[:3, 3]
+    return Alignment(transform, aligned, pair.to_callers_units(net_ts), confidence,
+                     (pair.src6.shape[1], pair.ref6.shape[1]), score.fitness, score.inlier_rmse,
+                     score.correspondences, converged, iters, float(max_dist), name, timings)
+
+
+def _confidence(perm: np.ndarray) -> float:
+    return float(0.5 * (perm.sum(axis=1).mean() + perm.sum(axis=0).mean()))

@@ -1,0 +1,1 @@
+"""Weights: official PyTorch names ⇄ our params, checkpoint loading, the shipped model (``*.npz`` + card)."""
