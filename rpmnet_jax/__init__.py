@@ -9,9 +9,10 @@ from rpmnet_jax.config import RPMNetConfig
 from rpmnet_jax.nn.pointnets import init_params
 from rpmnet_jax.registration import Registration, register
 from rpmnet_jax.scans.alignment import Alignment, align
+from rpmnet_jax.scans.scoring import evaluate_registration
 from rpmnet_jax.weights import convert
 from rpmnet_jax.weights.loading import load_default_params, load_params
 
-__all__ = ["Alignment", "RPMNetConfig", "Registration", "align", "convert", "init_params", "load_default_params",
+__all__ = ["Alignment", "RPMNetConfig", "Registration", "align", "convert", "evaluate_registration", "init_params", "load_default_params",
            "load_params", "register"]
 __version__ = "0.1.0"

@@ -15,6 +15,8 @@ from rpmnet_jax.weights import convert
 from rpmnet_jax.scans import normals
 from rpmnet_jax.weights import loading
 from rpmnet_jax.data import synthetic
+from rpmnet_jax import registration
+from rpmnet_jax.scans import prepare
 
 
 @pytest.fixture(scope="module")
@@ -84,11 +86,10 @@ def test_transform_is_rigid_and_in_callers_units(random_weights, centering):
     """A similarity applied to both inputs conjugates the answer: rotation unchanged, translation mapped."""
     src, src_n = _shape(seed=2, n=800)
     ref = src @ Rotation.from_euler("z", 30, degrees=True).as_matrix().T + 0.1
-    a = rpmnet_jax.align(src, ref, src_n, None, checkpoint=random_weights, num_points=256, num_iters=2,
-                         centering=centering)
+    kw = dict(checkpoint=random_weights, num_points=256, num_iters=2, centering=centering, init="local")
+    a = rpmnet_jax.align(src, ref, src_n, None, **kw)
     k, off = 250.0, np.array([1e3, -50.0, 7.0])
-    b = rpmnet_jax.align(src * k + off, ref * k + off, src_n, None, checkpoint=random_weights, num_points=256,
-                         num_iters=2, centering=centering)
+    b = rpmnet_jax.align(src * k + off, ref * k + off, src_n, None, **kw)
     rot = a.transform[:3, :3]
     np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-5)
     assert abs(np.linalg.det(rot) - 1) < 1e-5
@@ -103,12 +104,44 @@ def test_separate_centering_follows_a_shift_of_the_reference(random_weights):
     src, src_n = _shape(seed=4, n=600)
     ref, ref_n = _shape(seed=5, n=600)
     d = np.array([300.0, -20.0, 45.0])
-    a = rpmnet_jax.align(src, ref, src_n, ref_n, checkpoint=random_weights, num_points=200, num_iters=2)
-    b = rpmnet_jax.align(src, ref + d, src_n, ref_n, checkpoint=random_weights, num_points=200, num_iters=2)
+    kw = dict(checkpoint=random_weights, num_points=200, num_iters=2, init="local")
+    a = rpmnet_jax.align(src, ref, src_n, ref_n, **kw)
+    b = rpmnet_jax.align(src, ref + d, src_n, ref_n, **kw)
     np.testing.assert_allclose(b.transform[:3, :3], a.transform[:3, :3], atol=1e-6)
     np.testing.assert_allclose(b.transform[:3, 3], a.transform[:3, 3] + d, atol=1e-4)
     with pytest.raises(ValueError, match="centering"):
         rpmnet_jax.align(src, ref, src_n, ref_n, checkpoint=random_weights, centering="median")
+
+
+def test_refine_none_is_the_raw_network_exactly(random_weights):
+    src, src_n = _shape(seed=6, n=900)
+    ref, ref_n = _shape(seed=7, n=900)
+    params = loading.load_params(random_weights)
+    result = rpmnet_jax.align(src, ref, src_n, ref_n, params=params, num_points=300, init="local", refine="none")
+    pair = prepare.prepare_pair(src, ref, src_n, ref_n, num_points=300)
+    raw = registration.jitted(rpmnet_jax.RPMNetConfig(), 5)(params, pair.src6, pair.ref6)
+    np.testing.assert_array_equal(result.transform, pair.to_callers_units(np.asarray(raw.transform[0])))
+    np.testing.assert_array_equal(result.transforms, pair.to_callers_units(np.asarray(raw.transforms[:, 0])))
+    assert result.num_iterations == 0 and result.converged and result.init == "local"
+
+
+def test_pipeline_results_are_scored_like_evaluate_registration_and_deterministic(random_weights):
+    src, src_n = _shape(seed=8, n=1500)
+    ref = src @ Rotation.from_euler("y", 20, degrees=True).as_matrix().T * 3.0 + 5.0
+    kw = dict(checkpoint=random_weights, num_points=256, num_iters=2, init="local", seed=3)
+    a = rpmnet_jax.align(src * 3.0, ref, src_n, None, **kw)
+    b = rpmnet_jax.align(src * 3.0, ref, src_n, None, **kw)
+    np.testing.assert_array_equal(a.transform, b.transform)
+    assert a.max_correspondence_distance == pytest.approx(0.05 * np.linalg.norm(ref - ref.mean(0), axis=1).max())
+    score = rpmnet_jax.evaluate_registration(src * 3.0, ref, a.transform, a.max_correspondence_distance)
+    assert a.fitness == score.fitness and a.inlier_rmse == score.inlier_rmse
+    np.testing.assert_array_equal(a.correspondences, score.correspondences)
+    assert set(a.timings) == {"prepare", "network", "global", "refine", "score", "total"}
+    c = rpmnet_jax.align(src * 3.0, ref, src_n, None, max_correspondence_distance=0.5, **kw)
+    assert c.max_correspondence_distance == 0.5
+    for bad in (dict(init="everywhere"), dict(refine="gicp"), dict(max_correspondence_distance=-1.0), dict(top_k=0)):
+        with pytest.raises(ValueError):
+            rpmnet_jax.align(src, ref, **{**kw, **bad})
 
 
 def _write(tmp_path, name, pts, nrm=None):
@@ -149,6 +182,30 @@ def test_bad_inputs_fail_cleanly(tmp_path, capsys, random_weights, case):
     assert code == 2
     assert err.startswith("rpmnet-register: error:") and len(err.strip().splitlines()) == 1, err
     assert "Traceback" not in err and not out_t.exists()
+
+
+@pytest.mark.parametrize("case", ["src_folder", "ref_folder", "unreadable", "out_folder_missing", "bad_out_ext",
+                                  "num_points", "broken_ref"])
+def test_cli_errors_are_one_line_with_exit_2(tmp_path, capsys, random_weights, case):
+    good = _write(tmp_path, "good.npy", *_shape(n=300))
+    other = _write(tmp_path, "other.npy", *_shape(seed=1, n=300))
+    args = {
+        "src_folder": [str(tmp_path), good],
+        "ref_folder": [good, str(tmp_path)],
+        "unreadable": [_raw(tmp_path / "locked.xyz", b"0 0 0\n1 0 0\n0 1 0\n"), good],
+        "out_folder_missing": [good, other, "--out-transform", str(tmp_path / "no" / "T.txt")],
+        "bad_out_ext": [good, other, "--out-aligned", str(tmp_path / "aligned.obj")],
+        "num_points": [good, other, "--num-points", "2"],
+        "broken_ref": [good, _raw(tmp_path / "broken.ply", b"ply\nformat ascii 1.0\nelement vertex 9\n")],
+    }[case]
+    if case == "unreadable":
+        os.chmod(args[0], 0)
+        if os.access(args[0], os.R_OK):
+            pytest.skip("running with permissions that read any file (root)")
+    code, _, err = _run_cli(args + ["--checkpoint", random_weights], capsys)
+    assert code == 2, err
+    assert err.startswith("rpmnet-register: error:") and len(err.strip().splitlines()) == 1, err
+    assert "Traceback" not in err
 
 
 def test_nan_rows_are_dropped_with_a_warning(tmp_path, capsys, random_weights):

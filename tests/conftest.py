@@ -46,3 +46,33 @@ def random_transform(rng: np.random.Generator, batch: int, trans_mag: float = 0.
     rot = se3.quaternion_to_matrix(rng.normal(size=(batch, 4)))
     trans = rng.uniform(-trans_mag, trans_mag, size=(batch, 3, 1))
     return np.concatenate([rot, trans], axis=-1)
+
+
+def asymmetric_shape(seed: int = 0, n: int = 4000) -> tuple[np.ndarray, np.ndarray]:
+    """``points, normals (n, 3)`` of a synthetic shape with no rotational symmetry: a box, an ellipsoid-like
+    superquadric and a small cylinder at three different offsets, in the unit sphere."""
+    from rpmnet_jax.data import synthetic
+
+    rng = np.random.default_rng(seed)
+    parts = [(1, 0.5, [0.0, 0.0, 0.0]), (0, 0.3, [0.55, 0.25, 0.1]), (2, 0.2, [-0.3, 0.45, -0.35])]
+    pts, nrm = [], []
+    for label, size, offset in parts:
+        cloud = synthetic.sample_shape(rng, label, n // 3 + 1)
+        pts.append(cloud[:, :3] * size + np.asarray(offset))
+        nrm.append(cloud[:, 3:])
+    pts, nrm = np.concatenate(pts)[:n].astype(np.float64), np.concatenate(nrm)[:n].astype(np.float64)
+    pts -= pts.mean(0)
+    return pts / np.linalg.norm(pts, axis=1).max(), nrm
+
+
+def rotation_about(axis, degrees: float) -> np.ndarray:
+    """``(3, 3)`` rotation by ``degrees`` about ``axis``."""
+    from scipy.spatial.transform import Rotation
+
+    axis = np.asarray(axis, np.float64)
+    return Rotation.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis)).as_matrix()
+
+
+def rotation_error_deg(rot_a, rot_b) -> float:
+    """Angle in degrees between two rotations ``(3, 3)``."""
+    return float(se3.rotation_angle_deg(np.asarray(rot_a).T @ np.asarray(rot_b)))

@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rpmnet_jax.cli import eval_scans
+from rpmnet_jax.evaluation import metrics, scan_poses
 from rpmnet_jax.scans import cloud_io
 from rpmnet_jax.data import synthetic
 
@@ -37,7 +38,7 @@ def scans(tmp_path):
 
 def test_read_poses_round_trips(scans):
     folder, poses = scans
-    got = eval_scans.read_poses(str(folder / "scans.conf"))
+    got = scan_poses.read_poses(str(folder / "scans.conf"))
     for name, pose in poses.items():
         np.testing.assert_allclose(got[name], pose, atol=1e-12)
 
@@ -47,7 +48,7 @@ def test_errors_of_known_transforms():
     pred = np.eye(4)
     pred[:3, :3] = Rotation.from_euler("z", 12, degrees=True).as_matrix()
     pred[:3, 3] = [0.0, 0.3, 0.4]
-    err_r, err_t = eval_scans.errors(pred, gt)
+    err_r, err_t = metrics.transform_errors(pred, gt)
     assert err_r == pytest.approx(12.0) and err_t == pytest.approx(0.5)
 
 
@@ -60,7 +61,7 @@ def test_cli_ground_truth_and_outputs(scans, tmp_path, capsys):
     res = json.loads(out.read_text())
     row = res["pairs"][0]
     gt = np.linalg.inv(poses["b"]) @ poses["a"]
-    assert row["gt_rotation_deg"] == pytest.approx(eval_scans.errors(gt, np.eye(4))[0])
+    assert row["gt_rotation_deg"] == pytest.approx(metrics.transform_errors(gt, np.eye(4))[0])
     # identity's error is the ground-truth motion itself; RPM on an exact overlap recovers it.
     assert row["identity"]["err_r_deg"] == pytest.approx(row["gt_rotation_deg"], abs=1e-6)
     assert row["rpm"]["err_r_deg"] < 2.0 and row["rpm"]["err_t"] < 0.002

@@ -6,7 +6,8 @@ Each pair ``A:B`` registers scan A onto scan B. Both go through the same prepara
 (each centred on its centroid, one common scale into the unit sphere, ``--num-points`` random points,
 PCA normals); every method registers the prepared pair and its answer is mapped back to metres. The ground
 truth is ``T_B^-1 T_A`` with ``T_X = [[R_X^T, t_X], [0, 1]]`` from the ``bmesh`` lines. Prints a table and
-writes ``--output`` (JSON with per-pair errors).
+writes ``--output`` (JSON with per-pair errors). The pipeline methods (``rpmnet_icp``, ``rpmnet_auto``,
+``rpmnet_global``) run :func:`rpmnet_jax.align` on the full scans, exactly as ``rpmnet-register`` does.
 """
 
 from __future__ import annotations
@@ -22,37 +23,15 @@ import numpy as np
 DEFAULT_PAIRS = "bun045:bun000,bun090:bun045,bun000:bun315,bun315:bun270,bun180:bun090,bun270:bun180"
 
 
-def read_poses(conf_path: str) -> dict:
-    """``{scan name: 4x4 pose}`` from a Stanford ``.conf`` file (``bmesh NAME tx ty tz qx qy qz qw``)."""
-    from scipy.spatial.transform import Rotation
-    poses = {}
-    with open(conf_path) as f:
-        for line in f:
-            parts = line.split()
-            if len(parts) == 9 and parts[0] == "bmesh":
-                t, q = np.array(parts[2:5], float), np.array(parts[5:9], float)
-                pose = np.eye(4)
-                pose[:3, :3] = Rotation.from_quat(q).as_matrix().T
-                pose[:3, 3] = t
-                poses[os.path.splitext(parts[1])[0]] = pose
-    if not poses:
-        raise ValueError(f"no 'bmesh' lines in {conf_path}")
-    return poses
-
-
-def errors(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
-    """Isotropic rotation error (degrees) and translation error (units of the input) of 4x4 transforms."""
-    residual = np.linalg.inv(gt) @ pred
-    cos = np.clip((np.trace(residual[:3, :3]) - 1) / 2, -1.0, 1.0)
-    return float(np.degrees(np.arccos(cos))), float(np.linalg.norm(residual[:3, 3]))
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scans", required=True, help="folder with the scans (.ply) and bun.conf")
     p.add_argument("--conf", default="bun.conf", help="pose file inside --scans")
     p.add_argument("--pairs", default=DEFAULT_PAIRS, help="comma-separated SRC:REF scan names")
-    p.add_argument("--methods", default="rpmnet,icp,fgr,rpm,identity")
+    p.add_argument("--methods", default="rpmnet,rpmnet_auto,rpmnet_global,icp,fgr,identity",
+                   help="rpmnet (the network alone), rpmnet_icp / rpmnet_auto / rpmnet_global (rpmnet-register's "
+                        "pipeline with a local, automatic or global start, ICP-refined on the full scans), icp, fgr, "
+                        "rpm, identity")
     p.add_argument("--checkpoint", default=None, help="weights for rpmnet (default: shipped model)")
     p.add_argument("--num-points", type=int, default=1024)
     p.add_argument("--iters", type=int, default=5)
@@ -60,21 +39,27 @@ def main(argv=None) -> int:
     p.add_argument("--output", default=None, help="write the per-pair results as JSON")
     a = p.parse_args(argv)
 
-    from rpmnet_jax.evaluation import protocol
-    from rpmnet_jax.scans import alignment
-    from rpmnet_jax.scans import cloud_io
+    from rpmnet_jax.evaluation import metrics, protocol, scan_poses
+    from rpmnet_jax.scans import alignment, cloud_io, prepare
     from rpmnet_jax.weights import loading
     try:
-        poses = read_poses(os.path.join(a.scans, a.conf))
+        poses = scan_poses.read_poses(os.path.join(a.scans, a.conf))
         pairs = [tuple(x.split(":")) for x in a.pairs.split(",") if x]
         if any(len(x) != 2 or x[0] not in poses or x[1] not in poses for x in pairs):
             raise ValueError(f"--pairs must be SRC:REF names from {sorted(poses)}")
-        params = loading.load_params(a.checkpoint) if "rpmnet" in a.methods.split(",") else None
+        names = [m for m in a.methods.split(",") if m]
+        unknown = [m for m in names if m not in protocol.METHODS]
+        if unknown:
+            raise ValueError(f"unknown methods {unknown}; choose from {','.join(protocol.METHODS)}")
+        params = loading.load_params(a.checkpoint) if any(m.startswith("rpmnet") for m in names) else None
     except (ValueError, FileNotFoundError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     methods = {}
-    for name in a.methods.split(","):
+    for name in names:
+        if name in protocol.PIPELINES:  # the whole pipeline, on the full scans
+            methods[name] = None
+            continue
         try:
             methods[name] = protocol.method_fn(name, params, num_iters=a.iters)
         except RuntimeError as e:
@@ -84,15 +69,21 @@ def main(argv=None) -> int:
     for src_name, ref_name in pairs:
         src, src_n = cloud_io.read_cloud(os.path.join(a.scans, src_name + ".ply"))
         ref, ref_n = cloud_io.read_cloud(os.path.join(a.scans, ref_name + ".ply"))
-        pair = alignment.prepare_pair(src, ref, src_n, ref_n, num_points=a.num_points, seed=a.seed)
-        gt = np.linalg.inv(poses[ref_name]) @ poses[src_name]
+        pair = prepare.prepare_pair(src, ref, src_n, ref_n, num_points=a.num_points, seed=a.seed)
+        gt = scan_poses.relative_motion(poses, src_name, ref_name)
         size = float(np.linalg.norm(src.max(0) - src.min(0)))
-        row = {"pair": f"{src_name}:{ref_name}", "gt_rotation_deg": errors(gt, np.eye(4))[0], "size": size}
+        row = {"pair": f"{src_name}:{ref_name}", "gt_rotation_deg": metrics.transform_errors(gt, np.eye(4))[0],
+               "size": size}
         for name, fn in methods.items():
             t0 = time.perf_counter()
-            t_unit = np.asarray(fn(pair.src6, pair.ref6))[0, -1]
+            if fn is None:
+                result = alignment.align(src, ref, src_n, ref_n, params=params, num_points=a.num_points,
+                                         num_iters=a.iters, seed=a.seed, **protocol.PIPELINES[name])
+                pred = result.transform
+            else:
+                pred = pair.to_callers_units(np.asarray(fn(pair.src6, pair.ref6))[0, -1])
             seconds = time.perf_counter() - t0
-            err_r, err_t = errors(pair.to_callers_units(t_unit), gt)
+            err_r, err_t = metrics.transform_errors(pred, gt)
             row[name] = {"err_r_deg": err_r, "err_t": err_t, "seconds": seconds}
         results.append(row)
 

@@ -36,6 +36,8 @@ def parse_args(argv=None):
     p.add_argument("--limit", type=int, default=None, help="evaluate the first N pairs only")
     p.add_argument("--num-points", type=int, default=1024)
     p.add_argument("--iters", type=int, default=5, help="RPM-Net registration iterations")
+    p.add_argument("--rot-mag", type=float, default=45.0,
+                   help="largest rotation per Euler axis in degrees (45: the paper; 180: any orientation)")
     p.add_argument("--batch-size", type=int, default=8)
     p.add_argument("--figures", type=int, default=4, help="qualitative examples to plot (0: none)")
     p.add_argument("--no-progress", action="store_true")
@@ -53,6 +55,8 @@ def parse_args(argv=None):
     for name in ("num_points", "iters", "batch_size"):
         if getattr(a, name) < 1:
             p.error(f"--{name.replace('_', '-')} must be >= 1")
+    if not 0.0 <= a.rot_mag <= 180.0:
+        p.error("--rot-mag must be in [0, 180]")
     if a.limit is not None and a.limit < 1:
         p.error("--limit must be >= 1")
     return a, methods
@@ -71,11 +75,11 @@ def main(argv=None) -> int:
     if root is None:
         root = synthetic.ensure_dataset(os.path.join(a.output, "synthetic"), 40, 100, seed=0)
     try:
-        ds = data.ModelNet40(root, a.split, a.dataset, num_points=a.num_points)
+        ds = data.ModelNet40(root, a.split, a.dataset, num_points=a.num_points, rot_mag=a.rot_mag)
         if len(ds) == 0:
             raise ValueError(f"the {a.split} split of {root} is empty (the real subset has no test-category "
                              "shapes: use --split val)")
-        params = loading.load_params(a.checkpoint) if "rpmnet" in methods else None
+        params = loading.load_params(a.checkpoint) if any(m.startswith("rpmnet") for m in methods) else None
         file_t = None
         if a.transforms_file:
             file_t = np.load(a.transforms_file)
@@ -117,7 +121,7 @@ def main(argv=None) -> int:
     print(f"{a.dataset} / {a.split} split of {root}: {rows[first[0]]['pairs'] if first else 0} pairs")
     print(table)
     protocol.save_json(os.path.join(a.output, "metrics.json"),
-                         {"dataset": a.dataset, "split": a.split, "root": root, "methods": rows, "table": table})
+                         {"dataset": a.dataset, "split": a.split, "root": root, "rot_mag": a.rot_mag, "methods": rows, "table": table})
     if first is not None:
         multi = {k: v for k, v in curves.items()}
         plots.plot_chamfer(os.path.join(a.output, "chamfer_per_iteration.png"), multi)

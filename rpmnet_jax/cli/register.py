@@ -35,7 +35,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--refine", choices=("icp", "none"), default="icp",
                    help="robust point-to-plane ICP on denser samples (default), or none (the raw network)")
     p.add_argument("--max-correspondence-distance", type=float, default=None,
-                   help="inlier threshold in the clouds' units (default: 2%% of the clouds' radius)")
+                   help="inlier threshold in the clouds' units (default: 5%% of the clouds' radius)")
     p.add_argument("--low-fitness", type=float, default=0.3,
                    help="warn when the fitness of the answer is below this (default 0.3)")
     return p

@@ -62,3 +62,10 @@ def summarize_metrics(metrics: dict) -> dict:
         else:
             out[key] = float(np.mean(values))
     return out
+
+
+def transform_errors(pred, gt) -> tuple[float, float]:
+    """Isotropic rotation error (degrees) and translation error (input units) of one ``(4, 4)`` or
+    ``(3, 4)`` transform against the ground truth."""
+    residual = se3.compose(se3.inverse(np.asarray(gt, np.float64)[:3]), np.asarray(pred, np.float64)[:3])
+    return float(se3.rotation_angle_deg(residual[:, :3])), float(np.linalg.norm(residual[:, 3]))

@@ -16,7 +16,10 @@ from rpmnet_jax.data import loader
 from rpmnet_jax.evaluation import metrics
 from rpmnet_jax import config as config_lib
 
-METHODS = ("rpmnet", "icp", "fgr", "rpm", "identity")
+METHODS = ("rpmnet", "rpmnet_icp", "rpmnet_auto", "rpmnet_global", "icp", "fgr", "rpm", "identity")
+# the registration pipeline of :func:`rpmnet_jax.align` with these options
+PIPELINES = {"rpmnet_icp": dict(init="local", refine="icp"), "rpmnet_auto": dict(init="auto", refine="icp"),
+             "rpmnet_global": dict(init="global", refine="icp")}
 CSV_COLUMNS = ("idx", "label", "r_mse", "r_mae", "t_mse", "t_mae", "err_r_deg", "err_t", "chamfer_dist")
 
 
@@ -25,10 +28,29 @@ def _rpmnet_fn(params, cfg, num_iters):
     return lambda s, r: np.swapaxes(np.asarray(fn(params, s, r).transforms), 0, 1)  # (B, I, 3, 4)
 
 
+def _pipeline_fn(params, cfg, num_iters, options):
+    from rpmnet_jax.scans import alignment
+
+    def run(src, ref):
+        out = []
+        for s, r in zip(np.asarray(src, np.float64), np.asarray(ref, np.float64)):
+            a = alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params, cfg=cfg,
+                                num_iters=num_iters, num_points=max(len(s), len(r)), **options)
+            out.append(a.transform[:3])
+        return np.stack(out)[:, None]
+    return run
+
+
 def method_fn(name: str, params=None, cfg: config_lib.RPMNetConfig | None = None, num_iters: int = 5):
-    """``f(src (B,J,6), ref (B,K,6)) -> transforms (B, I, 3, 4)`` (I = 1 for single-shot methods)."""
+    """``f(src (B,J,6), ref (B,K,6)) -> transforms (B, I, 3, 4)`` (I = 1 for single-shot methods).
+
+    ``rpmnet`` is the network alone (the paper); ``rpmnet_icp``, ``rpmnet_auto`` and ``rpmnet_global`` are
+    :func:`rpmnet_jax.align`'s pipeline with a local, automatic or global start and ICP refinement.
+    """
     if name == "rpmnet":
         return _rpmnet_fn(params, cfg or config_lib.RPMNetConfig(), num_iters)
+    if name in PIPELINES:
+        return _pipeline_fn(params, cfg, num_iters, PIPELINES[name])
     if name == "identity":
         return lambda s, r: baselines.identity(s, r)[:, None]
     if name == "rpm":

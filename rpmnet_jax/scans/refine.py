@@ -33,7 +33,7 @@ def _rodrigues(omega: np.ndarray) -> np.ndarray:
 
 
 def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, scales=(4.0, 2.0, 1.0),
-                       max_iterations: int = 30, tolerance: float = 1e-6, ref_tree: cKDTree | None = None
+                       max_iterations: int = 30, tolerance: float = 1e-5, ref_tree: cKDTree | None = None
                        ) -> Refinement:
     """Refines ``init (4, 4)`` moving ``src (N, 3)`` onto ``ref (M, 3)`` with unit ``ref_normals (M, 3)``.
 

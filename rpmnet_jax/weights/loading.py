@@ -7,7 +7,7 @@ import os
 
 from rpmnet_jax.weights import convert
 
-WEIGHTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "weights")
+WEIGHTS_DIR = os.path.dirname(os.path.abspath(__file__))
 DEFAULT_WEIGHTS = os.path.join(WEIGHTS_DIR, "rpmnet_default.npz")
 DEFAULT_INFO = os.path.join(WEIGHTS_DIR, "rpmnet_default.json")
 

@@ -1,0 +1,63 @@
+"""Global initialisation: hypothesis coverage, the batched network call, recovery of any rotation."""
+
+import jax
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import rpmnet_jax
+from conftest import asymmetric_shape, rotation_about, rotation_error_deg
+from rpmnet_jax import registration
+from rpmnet_jax.scans import global_search
+from rpmnet_jax.weights import loading
+
+
+@pytest.mark.parametrize("kind,size,radius", [("icosahedral", 60, 44.4), ("octahedral", 24, 62.8)])
+def test_hypotheses_are_rotations_covering_so3(kind, size, radius):
+    rots = global_search.rotation_hypotheses(kind)
+    assert rots.shape == (size, 3, 3)
+    np.testing.assert_allclose(rots[0], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(rots @ np.swapaxes(rots, 1, 2), np.broadcast_to(np.eye(3), rots.shape), atol=1e-12)
+    assert np.all(np.linalg.det(rots) > 0.999)
+    # every one of 20,000 random rotations lies within the covering radius of some hypothesis
+    probe = Rotation.random(20000, random_state=0).as_quat()
+    hyp = Rotation.from_matrix(rots).as_quat()
+    nearest = 2 * np.degrees(np.arccos(np.clip(np.abs(probe @ hyp.T).max(axis=1), -1, 1)))
+    assert nearest.max() < radius
+
+
+def test_register_from_identity_equals_register():
+    """One hypothesis at the identity is register itself; H hypotheses equal H separate register calls on
+    the source moved by each start (rigid motions leave neighbour sets and PPF unchanged)."""
+    rng = np.random.default_rng(0)
+    params = rpmnet_jax.init_params(jax.random.PRNGKey(0))
+    pts, nrm = asymmetric_shape(1, 600)
+    src = np.concatenate([pts[:300], nrm[:300]], 1)[None].astype(np.float32)
+    ref = np.concatenate([pts[300:], nrm[300:]], 1)[None].astype(np.float32)
+    plain = registration.register(params, src, ref, num_iters=2)
+    one = registration.register_from(params, src, ref, np.eye(3, 4, dtype=np.float32)[None], num_iters=2)
+    np.testing.assert_allclose(one.transforms, plain.transforms, atol=1e-6)
+    starts = global_search.initial_transforms("octahedral")[:3]
+    many = registration.register_from(params, src, ref, starts, num_iters=1)
+    for h, start in enumerate(starts):
+        moved = src.copy()
+        moved[0, :, :3] = src[0, :, :3] @ start[:, :3].T
+        moved[0, :, 3:] = src[0, :, 3:] @ start[:, :3].T
+        single = registration.register(params, moved, ref, num_iters=1).transform[0]  # maps the moved source
+        composed = np.concatenate([single[:, :3] @ start[:, :3], single[:, 3:]], 1)  # ... so compose the start
+        np.testing.assert_allclose(many.transforms[0, h], composed, atol=2e-4)
+    del rng
+
+
+@pytest.mark.skipif(not loading.has_default(), reason="no shipped model in this checkout")
+@pytest.mark.parametrize("degrees,axis", [(100.0, [0.3, 0.8, 0.5]), (178.0, [1.0, -0.2, 0.4])])
+def test_global_init_recovers_large_rotations(degrees, axis):
+    pts, nrm = asymmetric_shape(2, 4000)
+    rot = rotation_about(axis, degrees)
+    trans = np.array([0.3, -0.2, 0.1])
+    src, src_n = pts[:3000], nrm[:3000]
+    ref, ref_n = pts[1000:] @ rot.T + trans, nrm[1000:] @ rot.T  # rot maps src onto ref
+    result = rpmnet_jax.align(src, ref, src_n, ref_n, init="global")
+    assert rotation_error_deg(result.transform[:3, :3], rot) < 1.0
+    assert np.linalg.norm(result.transform[:3, 3] - trans) < 0.02
+    assert result.init == "global" and result.fitness > 0.6 and result.converged
