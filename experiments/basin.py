@@ -35,7 +35,7 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
 
     from rpmnet_jax import data, registration
-    from rpmnet_jax.evaluation import metrics
+    from rpmnet_jax import metrics
     from rpmnet_jax.weights import loading
 
     ds = data.ModelNet40(a.data_root, a.split, a.dataset, num_points=a.num_points, rot_mag=0.0)

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from rpmnet_jax.evaluation import metrics
+from rpmnet_jax import metrics
 from rpmnet_jax.ops import se3
 
 

@@ -39,7 +39,8 @@ def main(argv=None) -> int:
     p.add_argument("--output", default=None, help="write the per-pair results as JSON")
     a = p.parse_args(argv)
 
-    from rpmnet_jax.evaluation import metrics, protocol, scan_poses
+    from rpmnet_jax import metrics
+from rpmnet_jax.evaluation import protocol, scan_poses
     from rpmnet_jax.scans import alignment, cloud_io, prepare
     from rpmnet_jax.weights import loading
     try:

@@ -66,7 +66,8 @@ def main(argv=None) -> int:
     a, methods = parse_args(argv)
     from rpmnet_jax import data
     from rpmnet_jax.data import synthetic
-    from rpmnet_jax.evaluation import metrics, protocol
+    from rpmnet_jax import metrics
+from rpmnet_jax.evaluation import protocol
     from rpmnet_jax.weights import loading
     from rpmnet_jax.cli import plots
 

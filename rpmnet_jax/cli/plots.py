@@ -65,3 +65,20 @@ def plot_examples(path, samples, transforms) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def plot_validation_curve(path: str, steps, values, label: str = "validation mean isotropic rotation error (°)",
+                          marks: dict | None = None) -> None:
+    """Line plot of a validation metric against the training step; ``marks``: ``{name: step}`` vertical lines."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(steps, values, marker="o", ms=3)
+    for name, step in (marks or {}).items():
+        ax.axvline(step, color="grey", ls="--", lw=0.8)
+        ax.text(step, max(values), f" {name}", fontsize=8, va="top")
+    ax.set_xlabel("training step")
+    ax.set_ylabel(label)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -13,7 +13,7 @@ import numpy as np
 from rpmnet_jax import data, registration
 from rpmnet_jax.evaluation import baselines
 from rpmnet_jax.data import loader
-from rpmnet_jax.evaluation import metrics
+from rpmnet_jax import metrics
 from rpmnet_jax import config as config_lib
 
 METHODS = ("rpmnet", "rpmnet_icp", "rpmnet_auto", "rpmnet_global", "icp", "fgr", "rpm", "identity")

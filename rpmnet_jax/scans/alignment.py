@@ -89,14 +89,25 @@ def _to4x4(t34: np.ndarray) -> np.ndarray:
     return out
 
 
+SELECT_FRACTION = 0.4  # refined candidates are compared by their fitness at this fraction of the threshold
+
+
 def _fitness(dense: _DenseClouds, t44: np.ndarray, max_distance: float) -> tuple[float, float]:
     s = scoring.evaluate_registration(dense.src, dense.ref, t44, max_distance, ref_tree=dense.ref_tree)
     return s.fitness, s.inlier_rmse
 
 
-def _better(a: tuple[float, float], b: tuple[float, float]) -> bool:
-    """Is score ``a = (fitness, rmse)`` better than ``b``: more fitness, then less RMSE."""
-    return a[0] > b[0] + 1e-9 or (abs(a[0] - b[0]) <= 1e-9 and a[1] < b[1])
+def _selection_score(dense: _DenseClouds, t44: np.ndarray, max_distance: float) -> tuple:
+    """``(fitness at 0.4 × max_distance, fitness at max_distance, -RMSE)``, larger is better.
+
+    The tight threshold tells a right answer from a symmetric flip: on partial, noisy shapes the flip
+    often overlaps *more* at ``max_distance`` but lies on the surface less closely (measured on real
+    ModelNet40 pairs at any rotation: all 6 of 30 pairs where the plain fitness chose a 160–180° flip
+    are decided for the truth at 0.3–0.6 × the threshold).
+    """
+    tight = _fitness(dense, t44, SELECT_FRACTION * max_distance)[0]
+    fitness, rmse = _fitness(dense, t44, max_distance)
+    return tight, fitness, -rmse
 
 
 def _check_options(init, refine, num_iters, top_k, refine_points, global_points, global_iters,
@@ -122,8 +133,8 @@ def _check_options(init, refine, num_iters, top_k, refine_points, global_points,
 def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
           num_points: int = 1024, num_iters: int = 5, sampling: str = "random", seed: int = 0,
           reestimate_normals: bool = False, centering: str = "separate", init: str = "auto",
-          refine: str = "icp", max_correspondence_distance: float | None = None, hypotheses: str = "icosahedral",
-          top_k: int = 3, global_points: int = 512, global_iters: int = 2, refine_points: int = 5000,
+          refine: str = "icp", max_correspondence_distance: float | None = None, hypotheses: str = "octahedral",
+          top_k: int = 3, global_points: int = 256, global_iters: int = 2, refine_points: int = 5000,
           auto_fitness: float = 0.5,
           cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
     """Rigidly aligns ``src_points (N, 3)`` onto ``ref_points (M, 3)``; see the module docstring.
@@ -171,23 +182,20 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
                 final, converged, iters = r.transform, r.converged, r.num_iterations
             else:
                 final, converged, iters = start, True, 0
-            score = _fitness(dense, final, max_dist_unit) if dense is not None else (1.0, 0.0)
+            score = _selection_score(dense, final, max_dist_unit) if dense is not None else (1.0, 1.0, 0.0)
             out.append((score, name, ts, conf, final, converged, iters))
         timings["refine"] += time.perf_counter() - t0
         return out
 
     results = refined(candidates)
-    if init == "global" or (init == "auto" and results[0][0][0] < auto_fitness):
+    if init == "global" or (init == "auto" and results[0][0][1] < auto_fitness):
         t0 = time.perf_counter()
         screened = _screen_hypotheses(params, pair, dense, cfg, hypotheses, global_points, global_iters,
                                       max_dist_unit, top_k)
         timings["global"] = time.perf_counter() - t0
         results += refined([("global", ts, conf, start if refine == "icp" else ts[-1]) for ts, conf, start in screened])
 
-    best = results[0]
-    for r in results[1:]:
-        if _better(r[0], best[0]):
-            best = r
+    best = max(results, key=lambda r: r[0])  # the first of equals: local before global
     _, name, net_ts, confidence, final_unit, converged, iters = best
     transform = pair.to_callers_units(final_unit[:3])
     t0 = time.perf_counter()
@@ -219,9 +227,8 @@ def _screen_hypotheses(params, pair: PreparedPair, dense: _DenseClouds, cfg, hyp
         r = refine_lib.point_to_plane_icp(few, dense.ref, dense.ref_normals, _to4x4(t), max_dist_unit,
                                           scales=(4.0, 2.0), max_iterations=8, ref_tree=dense.ref_tree)
         polished.append(r.transform[:3])
-        s = scoring.evaluate_registration(few, dense.ref, r.transform, max_dist_unit, ref_tree=dense.ref_tree)
-        scores.append((s.fitness, s.inlier_rmse))
-    order = sorted(range(len(nets)), key=lambda h: (-scores[h][0], scores[h][1]))[:top_k]
+        scores.append(_selection_score(dense._replace(src=few), r.transform, max_dist_unit))
+    order = sorted(range(len(nets)), key=lambda h: scores[h], reverse=True)[:top_k]
     return [(nets[h], float(confidences[h]), polished[h]) for h in order]
 
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from rpmnet_jax import data
 from rpmnet_jax.data import loader, synthetic
-from rpmnet_jax.evaluation import metrics
+from rpmnet_jax import metrics
 from rpmnet_jax.train import config as train_config
 from rpmnet_jax.train.checkpoints import Checkpoints
 from rpmnet_jax.train.config import TrainConfig

@@ -14,7 +14,7 @@ from rpmnet_jax import data
 from rpmnet_jax.evaluation import protocol
 from rpmnet_jax.evaluation import baselines
 from rpmnet_jax.weights import convert
-from rpmnet_jax.evaluation import metrics
+from rpmnet_jax import metrics
 from rpmnet_jax.nn import pointnets
 from rpmnet_jax.data import synthetic
 from rpmnet_jax.config import RPMNetConfig

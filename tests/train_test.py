@@ -107,7 +107,7 @@ def test_resume_refuses_a_different_config(tmp_path):
 _MULTI = r"""
 import json, sys, jax, numpy as np
 sys.path.insert(0, {tests!r})
-from training_test import tiny_cfg
+from train_test import tiny_cfg
 from rpmnet_jax import train as training
 s = training.train_and_evaluate(tiny_cfg({workdir!r}, max_steps=3, val_limit=None), progress=False)
 params = training.restore_params({workdir!r})
@@ -146,3 +146,75 @@ def test_cli_help_and_bad_flags():
     assert out.returncode == 2 and "features" in out.stderr
     out = run("--data-root", "/nonexistent/modelnet")
     assert out.returncode == 2 and "does not exist" in out.stderr
+
+
+_KILLABLE = r"""
+import sys
+sys.path.insert(0, {tests!r})
+from train_test import tiny_cfg
+from rpmnet_jax import train as training
+training.train_and_evaluate(tiny_cfg({workdir!r}, max_steps={steps}, val_limit=None), progress=False)
+"""
+
+
+def _train_script(workdir, steps):
+    code = _KILLABLE.format(tests=os.path.dirname(__file__), workdir=str(workdir), steps=steps)
+    return [sys.executable, "-c", code]
+
+
+def _params_of(workdir):
+    ckpt = training.Checkpoints(str(workdir), 3)
+    try:
+        template = training.create_train_state(jax.random.PRNGKey(0), tiny_cfg(workdir))
+        state = ckpt.restore_latest(template)
+    finally:
+        ckpt.close()
+    return int(state.step), jax.tree.leaves(state.params)
+
+
+@pytest.mark.slow  # three training processes, each compiling (~1 min)
+@pytest.mark.parametrize("moment", ["training", "checkpoint_write"])
+def test_sigkill_then_resume_is_bit_identical(tmp_path, moment):
+    """SIGKILL (no handler runs) while training, or as a checkpoint write begins; the resumed run ends with
+    exactly the parameters of an uninterrupted one."""
+    import time
+
+    steps = 6
+    subprocess.run(_train_script(tmp_path / "full", steps), check=True, cwd=REPO, capture_output=True)
+    latest = tmp_path / "killed" / "checkpoints" / "latest"
+    proc = subprocess.Popen(_train_script(tmp_path / "killed", steps), cwd=REPO, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None:
+        entries = os.listdir(latest) if latest.is_dir() else []
+        done = [e for e in entries if e.isdigit()]
+        if moment == "checkpoint_write" and len(entries) > len(done) and done:
+            break  # a temporary folder of a write in progress, after at least one finished checkpoint
+        if moment == "training" and len(done) >= 2:
+            time.sleep(0.3)  # mid-step
+            break
+        time.sleep(0.005)
+    assert proc.poll() is None, "the run ended before it could be killed"
+    proc.kill()
+    proc.wait()
+    killed_at, _ = _params_of(tmp_path / "killed")
+    assert 0 < killed_at < steps
+    subprocess.run(_train_script(tmp_path / "killed", steps), check=True, cwd=REPO, capture_output=True)
+    step_a, full = _params_of(tmp_path / "full")
+    step_b, resumed = _params_of(tmp_path / "killed")
+    assert step_a == step_b == steps
+    for a, b in zip(full, resumed):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.slow  # two CLI runs of the full-size model (~1 min)
+def test_cli_prints_resume_and_validation_lines(tmp_path):
+    args = [sys.executable, "-m", "experiments.train", "--dataset=partial", "--synthetic", "--synthetic-train", "8",
+            "--synthetic-test", "4", "--num-points", "32", "--batch-size", "2", "--val-limit", "2", "--no-progress",
+            "--workdir", str(tmp_path / "run")]
+    first = subprocess.run(args + ["--max-steps", "1"], capture_output=True, text=True, cwd=REPO)
+    assert first.returncode == 0, first.stderr[-2000:]
+    assert "validation" in first.stderr and "summary" in first.stdout
+    second = subprocess.run(args + ["--max-steps", "2"], capture_output=True, text=True, cwd=REPO)
+    assert second.returncode == 0, second.stderr[-2000:]
+    assert "resumed from step 1" in second.stderr and "step 2 validation" in second.stderr
