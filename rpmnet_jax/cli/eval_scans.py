@@ -40,7 +40,7 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
 
     from rpmnet_jax import metrics
-from rpmnet_jax.evaluation import protocol, scan_poses
+    from rpmnet_jax.evaluation import protocol, scan_poses
     from rpmnet_jax.scans import alignment, cloud_io, prepare
     from rpmnet_jax.weights import loading
     try:
@@ -107,6 +107,7 @@ def entry() -> None:
     """Console script ``rpmnet-eval-scans``."""
     from rpmnet_jax.cli import runtime
     runtime.use_huge_pages()
+    runtime.enable_compilation_cache()
     sys.exit(main())
 
 

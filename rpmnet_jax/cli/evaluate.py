@@ -28,7 +28,7 @@ def parse_args(argv=None):
                    help="test = unseen last 20 categories (paper); val = test files, first 20 categories")
     p.add_argument("--checkpoint", default=None,
                    help="orbax training dir, .npz of official weights, or official .pth (default: shipped model)")
-    p.add_argument("--methods", default="rpmnet,rpm,icp,fgr,identity",
+    p.add_argument("--methods", default="rpmnet,rpmnet_auto,rpm,icp,fgr,identity",
                    help=f"comma-separated subset of {','.join(protocol.METHODS)}")
     p.add_argument("--transforms-file", default=None,
                    help=".npy of (N, I, 3, 4) or (N, 3, 4) transforms produced elsewhere, evaluated as 'file'")
@@ -67,7 +67,7 @@ def main(argv=None) -> int:
     from rpmnet_jax import data
     from rpmnet_jax.data import synthetic
     from rpmnet_jax import metrics
-from rpmnet_jax.evaluation import protocol
+    from rpmnet_jax.evaluation import protocol
     from rpmnet_jax.weights import loading
     from rpmnet_jax.cli import plots
 
@@ -136,6 +136,7 @@ def entry() -> None:
     """Console script ``rpmnet-eval``."""
     from rpmnet_jax.cli import runtime
     runtime.use_huge_pages()
+    runtime.enable_compilation_cache()
     runtime.show_library_logs()
     sys.exit(main())
 

@@ -103,6 +103,7 @@ def main(argv=None) -> int:
 def entry() -> None:
     from rpmnet_jax.cli.register.register import runtime
     runtime.use_huge_pages()
+    runtime.enable_compilation_cache()
     sys.exit(main())
 
 

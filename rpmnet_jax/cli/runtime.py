@@ -61,3 +61,28 @@ def show_library_logs(level: int = logging.INFO) -> None:
         logger.addHandler(handler)
     logger.setLevel(level)
     logger.propagate = False
+
+
+CACHE_ENV = "RPMNET_COMPILATION_CACHE"
+
+
+def enable_compilation_cache() -> str | None:
+    """Keeps XLA's compiled programs between runs (JAX's persistent compilation cache), so a second
+    ``rpmnet-register`` skips the seconds of compilation. The folder is ``$RPMNET_COMPILATION_CACHE``, else
+    ``$XDG_CACHE_HOME/rpmnet_jax/xla`` (``~/.cache/rpmnet_jax/xla``); ``RPMNET_COMPILATION_CACHE=off`` turns
+    it off. Returns the folder, or ``None`` when off. CLIs only."""
+    folder = os.environ.get(CACHE_ENV)
+    if folder and folder.lower() in ("off", "0", "none", "false"):
+        return None
+    if not folder:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        folder = os.path.join(base, "rpmnet_jax", "xla")
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError:
+        return None  # read-only home: run without the cache
+    import jax
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return folder

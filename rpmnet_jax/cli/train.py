@@ -107,6 +107,7 @@ def main(argv=None):
 def entry() -> None:
     """Console script ``rpmnet-train``."""
     runtime.use_huge_pages()
+    runtime.enable_compilation_cache()
     runtime.show_library_logs()
     sys.exit(main())
 
