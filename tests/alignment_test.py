@@ -253,3 +253,14 @@ def test_cli_recovers_a_known_transform_with_the_shipped_model(tmp_path, capsys,
     print(json.dumps({"ext": ext, "rot_err_deg": float(err_r), "trans_err_rel": float(err_t)}))
     assert err_r < 5.0 and err_t < 0.05, (err_r, err_t)
     assert os.path.exists(out_a) and cloud_io.read_cloud(str(out_a))[0].shape == src.shape
+
+
+@pytest.mark.parametrize("module", ["register", "train", "evaluate", "eval_scans"])
+def test_console_entry_points_start(module):
+    """The installed scripts' entry functions (process set-up included) reach argument parsing."""
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, "-c", f"from rpmnet_jax.cli.{module} import entry; entry()", "--help"],
+                         capture_output=True, text=True, env=dict(os.environ, RPMNET_COMPILATION_CACHE="off"))
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "usage:" in out.stdout

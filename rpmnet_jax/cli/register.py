@@ -101,7 +101,7 @@ def main(argv=None) -> int:
 
 
 def entry() -> None:
-    from rpmnet_jax.cli.register.register import runtime
+    from rpmnet_jax.cli import runtime
     runtime.use_huge_pages()
     runtime.enable_compilation_cache()
     sys.exit(main())
