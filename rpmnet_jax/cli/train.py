@@ -58,6 +58,11 @@ def parse_args(argv=None) -> training.TrainConfig:
     p.add_argument("--ema-decay", type=float, default=None,
                    help="validate and keep an exponential moving average of the params (e.g. 0.999)")
     p.add_argument("--val-every-steps", type=int, default=None, help="also validate every N steps")
+    p.add_argument("--coordinator-address", default=None,
+                   help="multi-process training: HOST:PORT of process 0 (or JAX_COORDINATOR_ADDRESS); run the same "
+                        "command on every machine with its own --process-id")
+    p.add_argument("--num-processes", type=int, default=None, help="processes in a multi-process run (JAX_NUM_PROCESSES)")
+    p.add_argument("--process-id", type=int, default=None, help="this process's index, 0 first (JAX_PROCESS_ID)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     a = p.parse_args(argv)
     if not a.synthetic and a.data_root is None:
@@ -87,12 +92,12 @@ def parse_args(argv=None) -> training.TrainConfig:
         max_steps=a.max_steps, batch_size=a.batch_size, num_points=a.num_points, lr=a.lr, val_every=a.val_every,
         val_limit=a.val_limit, save_every=a.save_every, keep=a.keep, seed=a.seed, init_from=a.init_from,
         lr_schedule=a.lr_schedule, warmup_steps=a.warmup_steps, lr_final=a.lr_final, clip_norm=a.clip_norm,
-        ema_decay=a.ema_decay, val_every_steps=a.val_every_steps, model=model_cfg), not a.no_progress
+        ema_decay=a.ema_decay, val_every_steps=a.val_every_steps, model=model_cfg), not a.no_progress, a
 
 
 def main(argv=None):
-    cfg, progress = parse_args(argv)
-    training.maybe_initialize_distributed()
+    cfg, progress, a = parse_args(argv)
+    training.initialize_distributed(a.coordinator_address, a.num_processes, a.process_id)
     try:
         summary = training.train_and_evaluate(cfg, progress=progress)
     except (FileNotFoundError, FloatingPointError, ValueError) as e:

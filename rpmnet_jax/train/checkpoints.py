@@ -9,6 +9,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
+from rpmnet_jax.train.parallel import to_host
 from rpmnet_jax.train.step import TrainState
 
 log = logging.getLogger("rpmnet_jax.train")
@@ -27,7 +28,7 @@ class Checkpoints:
 
     @staticmethod
     def _host_state(state: TrainState) -> dict:
-        return jax.device_get(state._asdict())
+        return to_host(state._asdict())
 
     def save(self, state: TrainState, best_metric: float | None = None) -> None:
         host = self._host_state(state)

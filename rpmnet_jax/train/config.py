@@ -70,6 +70,9 @@ def check_and_save(cfg: TrainConfig) -> None:
         if diff:
             raise ConfigMismatchError(f"{cfg.workdir} holds a run with a different configuration {diff}")
     os.makedirs(cfg.workdir, exist_ok=True)
+    import jax
+    if jax.process_index() != 0:  # one writer in a multi-process run
+        return
     tmp = path + ".tmp"
     with open(tmp, "w") as f:
         json.dump(current, f, indent=2)

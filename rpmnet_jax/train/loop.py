@@ -19,7 +19,7 @@ from rpmnet_jax import metrics
 from rpmnet_jax.train import config as train_config
 from rpmnet_jax.train.checkpoints import Checkpoints
 from rpmnet_jax.train.config import TrainConfig
-from rpmnet_jax.train.parallel import Parallel
+from rpmnet_jax.train.parallel import Parallel, to_host
 from rpmnet_jax.train.step import create_train_state, make_eval_fn, make_train_step
 
 log = logging.getLogger("rpmnet_jax.train")
@@ -29,8 +29,13 @@ def _datasets(cfg: TrainConfig):
     """Train/val sets: the synthetic set and/or every folder of ``cfg.data_root`` (comma-separated)."""
     roots = [r for r in (cfg.data_root or "").split(",") if r]
     if cfg.synthetic:
-        roots.insert(0, synthetic.ensure_dataset(os.path.join(cfg.workdir, "synthetic"), cfg.synthetic_train,
-                                                 cfg.synthetic_test, cfg.seed))
+        root = os.path.join(cfg.workdir, "synthetic")
+        if jax.process_index() == 0:  # one writer; the others wait for it
+            synthetic.ensure_dataset(root, cfg.synthetic_train, cfg.synthetic_test, cfg.seed)
+        if jax.process_count() > 1:
+            from jax.experimental import multihost_utils
+            multihost_utils.sync_global_devices("rpmnet_jax: synthetic set written")
+        roots.insert(0, root)
     if not roots:
         raise FileNotFoundError("no training data: the config names no data root and no synthetic set")
     kw = dict(protocol=cfg.dataset, num_points=cfg.num_points, seed=cfg.seed)
@@ -77,7 +82,7 @@ class _Run:
         self.state = self.par.put_state(self._initial_state())
         self.train_step = make_train_step(cfg, self.total_steps)
         self.eval_fn = make_eval_fn(cfg)
-        self.writer = _summary_writer(cfg.workdir)
+        self.writer = _summary_writer(cfg.workdir) if jax.process_index() == 0 else None
         self.losses: list[float] = []
         self.val_summary = None
 
@@ -98,17 +103,18 @@ class _Run:
 
     def step(self, batch) -> None:
         self.state, scalars = self.train_step(self.state, self.par.put_batch(batch))
-        scalars = jax.device_get(scalars)
+        scalars = to_host(scalars)
         self.losses.append(float(scalars["loss"]))
-        if int(self.state.nonfinite) > self.cfg.max_nonfinite:
-            raise FloatingPointError(f"{int(self.state.nonfinite)} consecutive non-finite losses/gradients at "
-                                     f"step {int(self.state.step)}; stopping (last checkpoint is intact)")
-        _log_scalars(self.writer, int(self.state.step), scalars)
+        nonfinite, step = int(to_host(self.state.nonfinite)), int(to_host(self.state.step))
+        if nonfinite > self.cfg.max_nonfinite:
+            raise FloatingPointError(f"{nonfinite} consecutive non-finite losses/gradients at step {step}; "
+                                     "stopping (last checkpoint is intact)")
+        _log_scalars(self.writer, step, scalars)
 
     def validate_and_save(self, progress: bool) -> None:
         """Validates the EMA params (the params without EMA), logs, and checkpoints with the metric."""
-        step = int(self.state.step)
-        self.val_summary = validate(self.state.ema, self.val_set, self.cfg, self.eval_fn, progress)
+        step = int(to_host(self.state.step))
+        self.val_summary = validate(to_host(self.state.ema), self.val_set, self.cfg, self.eval_fn, progress)
         _log_scalars(self.writer, step, {f"val/{k}": v for k, v in self.val_summary.items()})
         log.info("step %d validation %s", step, json.dumps(self.val_summary))
         self.ckpt.save(self.state, best_metric=self.val_summary["chamfer_dist"])
@@ -150,7 +156,7 @@ def train_and_evaluate(cfg: TrainConfig, progress: bool = True) -> dict:
     run = _Run(cfg)
     stop = {"flag": False}
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__("flag", True))
-    step, t_start = int(run.state.step), time.time()
+    step, t_start = int(to_host(run.state.step)), time.time()
     try:
         while step < run.total_steps and not stop["flag"]:
             step = _run_epoch(run, step, stop, progress)
@@ -164,7 +170,7 @@ def train_and_evaluate(cfg: TrainConfig, progress: bool = True) -> dict:
     finally:
         signal.signal(signal.SIGTERM, previous)
         run.close()
-    return {"step": step, "interrupted": stop["flag"], "skipped_updates": int(run.state.skipped),
+    return {"step": step, "interrupted": stop["flag"], "skipped_updates": int(to_host(run.state.skipped)),
             "seconds": round(time.time() - t_start, 1), "last_loss": run.losses[-1] if run.losses else None,
             "losses": run.losses, "validation": run.val_summary, "devices": run.par.size}
 

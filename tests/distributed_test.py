@@ -1,0 +1,61 @@
+"""Multi-process training on jax.distributed: 2 processes × 2 CPU devices equal 1 process × 4 devices."""
+
+import json
+import os
+import socket
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+_WORKER = r"""
+import json, sys
+import jax
+jax.config.update("jax_cpu_collectives_implementation", "gloo")
+sys.path.insert(0, {tests!r})
+from rpmnet_jax import train as training
+if {processes} > 1:
+    training.initialize_distributed({address!r}, {processes}, {pid})
+from train_test import tiny_cfg
+s = training.train_and_evaluate(tiny_cfg({workdir!r}, max_steps={steps}, val_limit=None), progress=False)
+params = training.restore_params({workdir!r})  # every process reads the one checkpoint
+norm = float(sum((x.astype("float64") ** 2).sum() for x in jax.tree.leaves(params)))
+print(json.dumps({{"devices": s["devices"], "losses": s["losses"], "step": s["step"], "norm": norm}}))
+"""
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def _launch(processes: int, devices_each: int, workdir, steps: int) -> list[dict]:
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices_each}", JAX_PLATFORMS="cpu")
+    address = f"localhost:{_free_port()}"
+    procs = [subprocess.Popen([sys.executable, "-c", _WORKER.format(
+        tests=os.path.dirname(__file__), processes=processes, address=address, pid=pid, workdir=str(workdir),
+        steps=steps)], env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for pid in range(processes)]
+    outs = []
+    for p in procs:
+        out, err = p.communicate(timeout=900)
+        assert p.returncode == 0, err[-3000:]
+        outs.append(json.loads(out.strip().splitlines()[-1]))
+    return outs
+
+
+@pytest.mark.slow  # three processes that each compile training and validation
+def test_two_processes_equal_one_process_with_four_devices(tmp_path):
+    one = _launch(1, 4, tmp_path / "one", steps=3)[0]
+    two = _launch(2, 2, tmp_path / "two", steps=3)
+    assert one["devices"] == 4 and all(r["devices"] == 4 for r in two)
+    for r in two:  # every process sees the same global losses
+        np.testing.assert_allclose(r["losses"], one["losses"], rtol=1e-5)
+    for r in two:  # the checkpoint, written once, restores the same parameters in every process
+        np.testing.assert_allclose(r["norm"], one["norm"], rtol=1e-5)
+    resumed = _launch(2, 2, tmp_path / "two", steps=4)  # both restore it and go on
+    assert all(r["step"] == 4 and len(r["losses"]) == 1 for r in resumed)
