@@ -14,7 +14,6 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 _WORKER = r"""
 import json, sys
 import jax
-jax.config.update("jax_cpu_collectives_implementation", "gloo")
 sys.path.insert(0, {tests!r})
 from rpmnet_jax import train as training
 if {processes} > 1:

@@ -60,6 +60,7 @@ def initialize_distributed(coordinator: str | None = None, num_processes: int | 
     env_int = lambda name: int(os.environ[name]) if name in os.environ else None
     num_processes = num_processes if num_processes is not None else env_int("JAX_NUM_PROCESSES")
     process_id = process_id if process_id is not None else env_int("JAX_PROCESS_ID")
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")  # CPU devices talk across processes
     jax.distributed.initialize(coordinator, num_processes, process_id)
     return True
 
