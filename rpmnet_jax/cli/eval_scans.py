@@ -106,9 +106,7 @@ def main(argv=None) -> int:
 def entry() -> None:
     """Console script ``rpmnet-eval-scans``."""
     from rpmnet_jax.cli import runtime
-    runtime.use_huge_pages()
-    runtime.enable_compilation_cache()
-    sys.exit(main())
+    runtime.run(main)
 
 
 if __name__ == "__main__":

@@ -135,10 +135,7 @@ def main(argv=None) -> int:
 def entry() -> None:
     """Console script ``rpmnet-eval``."""
     from rpmnet_jax.cli import runtime
-    runtime.use_huge_pages()
-    runtime.enable_compilation_cache()
-    runtime.show_library_logs()
-    sys.exit(main())
+    runtime.run(main)
 
 
 if __name__ == "__main__":

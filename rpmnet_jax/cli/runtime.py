@@ -86,3 +86,12 @@ def enable_compilation_cache() -> str | None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return folder
+
+
+def run(main) -> None:
+    """A console script's whole life: huge pages, the compilation cache, library logs on the terminal, then
+    ``sys.exit(main())``."""
+    use_huge_pages()
+    enable_compilation_cache()
+    show_library_logs()
+    sys.exit(main())

@@ -111,10 +111,8 @@ def main(argv=None):
 
 def entry() -> None:
     """Console script ``rpmnet-train``."""
-    runtime.use_huge_pages()
-    runtime.enable_compilation_cache()
-    runtime.show_library_logs()
-    sys.exit(main())
+    from rpmnet_jax.cli import runtime
+    runtime.run(main)
 
 
 if __name__ == "__main__":
