@@ -32,7 +32,7 @@ def tiny_batch(tmp_path_factory):
     return {k: np.stack([s[k] for s in samples]) for k in training.DEVICE_KEYS}
 
 
-def test_first_step_golden_loss_and_descent(tiny_batch):
+def test_first_step_loss_equals_the_training_loss_and_descends(tiny_batch):
     cfg = tiny_cfg("unused")
     state = training.create_train_state(jax.random.PRNGKey(0), cfg)
     expected = float(jax.jit(losses.training_loss, static_argnums=2)(state.params, tiny_batch, cfg.model))
@@ -44,6 +44,34 @@ def test_first_step_golden_loss_and_descent(tiny_batch):
         state, scalars = step(state, tiny_batch)
     assert float(scalars["loss"]) < first
     assert int(state.step) == 16 and int(state.skipped) == 0
+
+
+def test_ema_schedule_and_clipping(tiny_batch):
+    """EMA after one step is decay·init + (1-decay)·params (by hand); warmup starts at lr 0, so the first
+    update of a warmed-up run is zero; clipping keeps the step finite and the loss the same."""
+    cfg = tiny_cfg("unused", ema_decay=0.9, lr_schedule="cosine", warmup_steps=3, lr_final=1e-5, clip_norm=0.1)
+    state = training.create_train_state(jax.random.PRNGKey(0), cfg, total_steps=10)
+    init = jax.tree.map(np.asarray, state.params)
+    step = training.make_train_step(cfg, total_steps=10)
+    state, _ = step(state, tiny_batch)
+    jax.tree.map(np.testing.assert_array_equal, jax.tree.map(np.asarray, state.params), init)  # lr(0) = 0
+    state, _ = step(state, tiny_batch)
+    params, ema = jax.tree.map(np.asarray, state.params), jax.tree.map(np.asarray, state.ema)
+    expected = jax.tree.map(lambda p0, p: 0.9 * (0.9 * p0 + 0.1 * p0) + 0.1 * p, init, params)
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7), ema, expected)
+    assert any(np.any(a != b) for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(init)))
+    sched = training.step.learning_rate(cfg, 10)
+    assert float(sched(0)) == 0.0 and float(sched(3)) == pytest.approx(1e-3) and float(sched(10)) == pytest.approx(1e-5)
+
+
+def test_init_from_npz_starts_from_those_params(tmp_path):
+    from rpmnet_jax.weights import convert
+    params = training.create_train_state(jax.random.PRNGKey(7), tiny_cfg("unused")).params
+    np.savez(tmp_path / "w.npz", **convert.params_to_torch(params))
+    cfg = tiny_cfg(tmp_path / "run", max_steps=1, init_from=str(tmp_path / "w.npz"), lr=0.0)
+    training.train_and_evaluate(cfg, progress=False)
+    got = training.restore_params(str(tmp_path / "run"))
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-7), got, params)
 
 
 def test_nonfinite_update_is_skipped(tiny_batch):
