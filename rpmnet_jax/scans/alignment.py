@@ -135,7 +135,7 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
           reestimate_normals: bool = False, centering: str = "separate", init: str = "auto",
           refine: str = "icp", max_correspondence_distance: float | None = None, hypotheses: str = "octahedral",
           top_k: int = 3, global_points: int = 256, global_iters: int = 2, refine_points: int = 5000,
-          auto_fitness: float = 0.5,
+          auto_fitness: float = 0.6,
           cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
     """Rigidly aligns ``src_points (N, 3)`` onto ``ref_points (M, 3)``; see the module docstring.
 
