@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     ds = data.ModelNet40(a.data_root, a.split, a.dataset, num_points=a.num_points, rot_mag=0.0)
     idx = np.linspace(0, len(ds) - 1, min(a.pairs, len(ds))).astype(int)
     params = loading.load_params(a.checkpoint)
-    fn = registration.jitted()
+    fn = registration.jitted(field="transforms")
     rng = np.random.default_rng(0)
     axes = rng.normal(size=(len(idx), 3))
     rows = []
@@ -55,7 +55,7 @@ def main(argv=None) -> int:
             src[:, 3:] = src[:, 3:] @ rot.T
             gt = s["transform_gt"].astype(np.float64)
             gt = np.concatenate([gt[:, :3] @ rot.T, gt[:, 3:]], axis=1)  # maps the rotated source
-            pred = np.asarray(fn(params, src[None], s["points_ref"][None]).transform)
+            pred = np.asarray(fn(params, src[None], s["points_ref"][None])[-1])
             m = metrics.registration_metrics(pred, gt[None], src[None], s["points_ref"][None], s["points_raw"][None])
             errs.append(float(m["err_r_deg"][0]))
         errs = np.array(errs)

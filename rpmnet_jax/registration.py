@@ -162,13 +162,14 @@ def register_from(params, src, ref, init, cfg: config_lib.RPMNetConfig = config_
 
 
 @functools.lru_cache(maxsize=None)
-def jitted(cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(), num_iters: int | None = None):
+def jitted(cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(), num_iters: int | None = None,
+           field: str | None = None):
     """``jax.jit(register)`` for one config and iteration count, compiled once per process:
-    ``jitted(cfg, n)(params, src, ref) -> Registration``."""
-    return jax.jit(functools.partial(register, cfg=cfg, num_iters=num_iters))
-
-
-@functools.lru_cache(maxsize=None)
-def jitted_from(cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(), num_iters: int | None = None):
-    """``jax.jit(register_from)`` for one config and iteration count: ``(params, src, ref, init)``."""
-    return jax.jit(functools.partial(register_from, cfg=cfg, num_iters=num_iters))
+    ``jitted(cfg, n)(params, src, ref) -> Registration``. With ``field`` (e.g. ``"transforms"``) the compiled
+    function returns only that output, so the per-iteration match matrices are never materialised."""
+    fn = functools.partial(register, cfg=cfg, num_iters=num_iters)
+    if field is None:
+        return jax.jit(fn)
+    if field not in Registration._fields:
+        raise ValueError(f"field must be one of {Registration._fields}, got {field!r}")
+    return jax.jit(lambda params, src, ref: getattr(fn(params, src, ref), field))

@@ -111,7 +111,6 @@ def main(argv=None):
 
 def entry() -> None:
     """Console script ``rpmnet-train``."""
-    from rpmnet_jax.cli import runtime
     runtime.run(main)
 
 

@@ -12,6 +12,7 @@ import numpy as np
 
 from rpmnet_jax import data, registration
 from rpmnet_jax.evaluation import baselines
+from rpmnet_jax.scans import alignment
 from rpmnet_jax.data import loader
 from rpmnet_jax import metrics
 from rpmnet_jax import config as config_lib
@@ -24,13 +25,11 @@ CSV_COLUMNS = ("idx", "label", "r_mse", "r_mae", "t_mse", "t_mae", "err_r_deg", 
 
 
 def _rpmnet_fn(params, cfg, num_iters):
-    fn = registration.jitted(cfg, num_iters)
-    return lambda s, r: np.swapaxes(np.asarray(fn(params, s, r).transforms), 0, 1)  # (B, I, 3, 4)
+    fn = registration.jitted(cfg, num_iters, "transforms")
+    return lambda s, r: np.swapaxes(np.asarray(fn(params, s, r)), 0, 1)  # (B, I, 3, 4)
 
 
 def _pipeline_fn(params, cfg, num_iters, options):
-    from rpmnet_jax.scans import alignment
-
     def run(src, ref):
         out = []
         for s, r in zip(np.asarray(src, np.float64), np.asarray(ref, np.float64)):

@@ -68,8 +68,6 @@ class FeatureNet(nn.Module):
 
     @nn.compact
     def __call__(self, x_BxNxKxC):
-        from rpmnet_jax.nn import fused_mlp_max
-
         d = self.feature_dim
         layers = []
         for i, (fan_in, out) in enumerate([(self.raw_dim, d), (d, d), (d, 2 * d)]):

@@ -5,13 +5,13 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
 1. prepare: clean, centre each cloud, scale both into the unit sphere, sample ``num_points`` per cloud for the
    network (:mod:`rpmnet_jax.scans.prepare`);
 2. start: ``init="local"`` runs the network once from the identity; ``init="global"`` runs it from the
-   rotation hypotheses of :mod:`rpmnet_jax.scans.global_search` in one batched call and keeps the
-   ``top_k`` answers with the best fitness; ``init="auto"`` (default) is local, and global only when the
-   refined local answer's fitness is below ``auto_fitness``;
+   rotation hypotheses of :mod:`rpmnet_jax.scans.global_search` in one batched call, polishes each answer
+   with a short ICP and keeps the ``top_k`` best; ``init="auto"`` (default) is local, and global only when
+   the refined local answer's fitness is below ``auto_fitness``;
 3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.scans.refine`) from
    each start on denser samples of the caller's clouds (``refine_points`` source and ``4 × refine_points``
-   reference points, random); the answer with the best fitness wins; ``refine="none"`` returns the
-   network's answer as it is (the paper's method);
+   reference points, random); the answer with the best :func:`_selection_score` wins; ``refine="none"``
+   returns the network's answer as it is (the paper's method);
 4. score: fitness, inlier RMSE and correspondences of the answer on the full clouds, as Open3D's
    ``evaluate_registration`` (:mod:`rpmnet_jax.scans.scoring`).
 
@@ -28,12 +28,12 @@ import time
 from typing import NamedTuple
 
 import jax
-
 import numpy as np
 from scipy.spatial import cKDTree
 
 from rpmnet_jax import config as config_lib
 from rpmnet_jax import registration
+from rpmnet_jax.ops import se3
 from rpmnet_jax.scans import global_search, refine as refine_lib, scoring
 from rpmnet_jax.scans import normals as normals_lib
 from rpmnet_jax.scans.prepare import PreparedPair, prepare_pair
@@ -83,18 +83,7 @@ def _dense_clouds(pair: PreparedPair, refine_points: int, seed: int) -> _DenseCl
     return _DenseClouds(src, ref, normals, cKDTree(ref))
 
 
-def _to4x4(t34: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :] = t34
-    return out
-
-
 SELECT_FRACTION = 0.4  # refined candidates are compared by their fitness at this fraction of the threshold
-
-
-def _fitness(dense: _DenseClouds, t44: np.ndarray, max_distance: float) -> tuple[float, float]:
-    s = scoring.evaluate_registration(dense.src, dense.ref, t44, max_distance, ref_tree=dense.ref_tree)
-    return s.fitness, s.inlier_rmse
 
 
 def _selection_score(dense: _DenseClouds, t44: np.ndarray, max_distance: float) -> tuple:
@@ -105,9 +94,9 @@ def _selection_score(dense: _DenseClouds, t44: np.ndarray, max_distance: float) 
     ModelNet40 pairs at any rotation: all 6 of 30 pairs where the plain fitness chose a 160–180° flip
     are decided for the truth at 0.3–0.6 × the threshold).
     """
-    tight = _fitness(dense, t44, SELECT_FRACTION * max_distance)[0]
-    fitness, rmse = _fitness(dense, t44, max_distance)
-    return tight, fitness, -rmse
+    s = scoring.evaluate_registration(dense.src, dense.ref, t44, max_distance, ref_tree=dense.ref_tree)
+    tight = np.count_nonzero(s.distances <= SELECT_FRACTION * max_distance) / len(dense.src)
+    return tight, s.fitness, -s.inlier_rmse
 
 
 def _check_options(init, refine, num_iters, top_k, refine_points, global_points, global_iters,
@@ -144,8 +133,8 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     ``sampling``: ``random`` or ``fps`` down to ``num_points`` per cloud for the network. ``centering``:
     ``separate`` (each cloud on its centroid) or ``common`` (both on their joint centroid). ``hypotheses``:
     ``icosahedral`` (60) or ``octahedral`` (24) starts for the global search, screened with ``global_iters``
-    network iterations on ``global_points`` per cloud; the ``top_k`` best continue with the full network
-    (``num_points``, ``num_iters``). Deterministic for a ``seed``.
+    network iterations on ``global_points`` per cloud and a short ICP; the ``top_k`` best are refined.
+    Deterministic for a ``seed``.
     """
     _check_options(init, refine, num_iters, top_k, refine_points, global_points, global_iters,
                    max_correspondence_distance, auto_fitness)
@@ -161,21 +150,21 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     dense = _dense_clouds(pair, refine_points, seed) if (refine == "icp" or init != "local") else None
     timings["prepare"] = time.perf_counter() - t_start
 
-    # candidates: (name, network transforms (I, 3, 4), confidence)
+    # candidates: (name, network transforms (I, 3, 4), confidence, start (3, 4))
     candidates = []
     if init in ("local", "auto"):
         t0 = time.perf_counter()
         reg = registration.jitted(cfg, int(num_iters))(params, pair.src6, pair.ref6)
         perm = np.asarray(reg.perm_matrices[-1, 0])
         net_ts = np.asarray(reg.transforms[:, 0], np.float64)
-        candidates.append(("local", net_ts, _confidence(perm), net_ts[-1]))
+        candidates.append(("local", net_ts, float(confidence(perm)), net_ts[-1]))
         timings["network"] = time.perf_counter() - t0
 
     def refined(cands):
         out = []
         t0 = time.perf_counter()
         for name, ts, conf, start in cands:
-            start = _to4x4(start)
+            start = se3.to_homogeneous(start)
             if refine == "icp":
                 r = refine_lib.point_to_plane_icp(dense.src, dense.ref, dense.ref_normals, start, max_dist_unit,
                                                   ref_tree=dense.ref_tree)
@@ -193,17 +182,18 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
         screened = _screen_hypotheses(params, pair, dense, cfg, hypotheses, global_points, global_iters,
                                       max_dist_unit, top_k)
         timings["global"] = time.perf_counter() - t0
-        results += refined([("global", ts, conf, start if refine == "icp" else ts[-1]) for ts, conf, start in screened])
+        results += refined([("global", ts, conf, start if refine == "icp" else ts[-1])
+                            for ts, conf, start in screened])
 
     best = max(results, key=lambda r: r[0])  # the first of equals: local before global
-    _, name, net_ts, confidence, final_unit, converged, iters = best
+    _, name, net_ts, conf, final_unit, converged, iters = best
     transform = pair.to_callers_units(final_unit[:3])
     t0 = time.perf_counter()
     score = scoring.evaluate_registration(pair.src, pair.ref, transform, max_dist)
     timings["score"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     aligned = pair.src @ transform[:3, :3].T + transform[:3, 3]
-    return Alignment(transform, aligned, pair.to_callers_units(net_ts), confidence,
+    return Alignment(transform, aligned, pair.to_callers_units(net_ts), conf,
                      (pair.src6.shape[1], pair.ref6.shape[1]), score.fitness, score.inlier_rmse,
                      score.correspondences, converged, iters, float(max_dist), name, timings)
 
@@ -211,9 +201,10 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
 def _screen_hypotheses(params, pair: PreparedPair, dense: _DenseClouds, cfg, hypotheses: str, num_points: int,
                        num_iters: int, max_dist_unit: float, top_k: int, polish_points: int = 1000) -> list:
     """Runs every rotation hypothesis through ``num_iters`` network iterations on ``num_points`` of each
-    cloud (one batched call), polishes each answer with a short ICP on ``polish_points`` source points, and returns the
-    ``top_k`` by fitness as ``[(network transforms (I, 3, 4), confidence, polished (3, 4))]``, best first. (A network answer a few degrees off scores a low fitness at a tight threshold; the
-    short ICP makes the scores of right answers comparable.)"""
+    cloud (one batched call), polishes each answer with a short ICP on ``polish_points`` source points, and
+    returns the ``top_k`` by :func:`_selection_score` as ``[(network transforms (I, 3, 4), confidence,
+    polished (3, 4))]``, best first. (A network answer a few degrees off scores a low fitness at a tight
+    threshold; the short ICP makes the scores of right answers comparable.)"""
     starts = global_search.initial_transforms(hypotheses)
     rng = np.random.default_rng(0)
     src = pair.src6[:, _sample(rng, pair.src6.shape[1], num_points)]
@@ -224,7 +215,7 @@ def _screen_hypotheses(params, pair: PreparedPair, dense: _DenseClouds, cfg, hyp
     few = dense.src[_sample(rng, len(dense.src), polish_points)]
     polished, scores = [], []
     for t in nets[:, -1]:
-        r = refine_lib.point_to_plane_icp(few, dense.ref, dense.ref_normals, _to4x4(t), max_dist_unit,
+        r = refine_lib.point_to_plane_icp(few, dense.ref, dense.ref_normals, se3.to_homogeneous(t), max_dist_unit,
                                           scales=(4.0, 2.0), max_iterations=8, ref_tree=dense.ref_tree)
         polished.append(r.transform[:3])
         scores.append(_selection_score(dense._replace(src=few), r.transform, max_dist_unit))
@@ -239,10 +230,11 @@ def _screen_fn(cfg, num_iters: int):
 
     def run(params, src, ref, starts):
         reg = registration.register_from(params, src, ref, starts, cfg, num_iters)
-        perm = reg.perm_matrices[-1]
-        return reg.transforms, 0.5 * (perm.sum(axis=2).mean(axis=1) + perm.sum(axis=1).mean(axis=1))
+        return reg.transforms, confidence(reg.perm_matrices[-1])
     return jax.jit(run)
 
 
-def _confidence(perm: np.ndarray) -> float:
-    return float(0.5 * (perm.sum(axis=1).mean() + perm.sum(axis=0).mean()))
+def confidence(perm):
+    """Mean inlier mass of match matrices ``perm (..., J, K)`` → ``(...)``: the mean of the row and column
+    sums (NumPy or JAX)."""
+    return 0.5 * (perm.sum(axis=-1).mean(axis=-1) + perm.sum(axis=-2).mean(axis=-1))

@@ -12,6 +12,7 @@ class Score(NamedTuple):
     fitness: float  # fraction of source points with a reference point within max_distance
     inlier_rmse: float  # RMS distance of those pairs (0 when there are none)
     correspondences: np.ndarray  # (n, 2) int64: (source index, reference index) of each inlier pair
+    distances: np.ndarray  # (n,) distance of each inlier pair
 
 
 def _as_points(name: str, x) -> np.ndarray:
@@ -40,4 +41,4 @@ def evaluate_registration(src, ref, transform, max_distance: float, ref_tree: cK
     n = int(inlier.sum())
     rmse = float(np.sqrt(np.mean(dist[inlier] ** 2))) if n else 0.0
     corr = np.stack([np.nonzero(inlier)[0], idx[inlier]], axis=1).astype(np.int64)
-    return Score(n / len(src), rmse, corr)
+    return Score(n / len(src), rmse, corr, dist[inlier])

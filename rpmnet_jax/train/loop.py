@@ -54,7 +54,7 @@ def validate(params, val_set, cfg: TrainConfig, eval_fn=None, progress: bool = T
     from tqdm.auto import tqdm
     for batch in tqdm(loader.batches(subset, cfg.resolved_batch_size), desc="validate", leave=False,
                       disable=not progress, total=math.ceil(n / cfg.resolved_batch_size)):
-        transforms = np.asarray(eval_fn(params, batch["points_src"], batch["points_ref"]).transforms)
+        transforms = np.asarray(eval_fn(params, batch["points_src"], batch["points_ref"]))
         m = metrics.registration_metrics(transforms[-1], batch["transform_gt"], batch["points_src"],
                                          batch["points_ref"], batch["points_raw"])
         for k, v in m.items():

@@ -77,5 +77,6 @@ def make_train_step(cfg: TrainConfig, total_steps: int = 0):
 
 
 def make_eval_fn(cfg: TrainConfig):
-    """``eval_fn(params, src, ref) -> Registration`` with ``cfg.model.num_reg_iters`` iterations (jitted)."""
-    return registration.jitted(cfg.model)
+    """``eval_fn(params, src, ref) -> transforms (I, B, 3, 4)`` with ``cfg.model.num_reg_iters`` iterations
+    (jitted)."""
+    return registration.jitted(cfg.model, None, "transforms")
