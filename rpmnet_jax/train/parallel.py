@@ -64,5 +64,3 @@ def initialize_distributed(coordinator: str | None = None, num_processes: int | 
     jax.distributed.initialize(coordinator, num_processes, process_id)
     return True
 
-
-maybe_initialize_distributed = initialize_distributed

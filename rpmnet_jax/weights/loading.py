@@ -40,7 +40,7 @@ def load_params(path: str | None = None) -> dict:
         raise FileNotFoundError(f"checkpoint not found: {path}")
     if os.path.isdir(path):
         return restore_params(path)
-    if path.endswith((".npz", ".pth", ".pt", ".tar")):
+    if path.endswith((".npz", ".pth", ".pt")):
         return convert.params_from_torch(path)
     raise ValueError(f"unknown checkpoint format {path!r}: expected an orbax directory, .npz or .pth")
 
