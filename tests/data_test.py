@@ -139,8 +139,28 @@ def test_batches_fixed_shapes_shuffle_and_drop_remainder(synthetic_root):
     assert not np.array_equal(epoch1["idx"], epoch0[0]["idx"])
     resumed = next(loader.batches(ds, 8, shuffle=True, drop_remainder=True, epoch=0, start_batch=2))
     np.testing.assert_array_equal(resumed["points_src"], epoch0[2]["points_src"])
-    tail = list(loader.batches(ds, 8, drop_remainder=False))
-    assert tail[-1]["points_src"].shape[0] == len(ds) % 8 or len(ds) % 8 == 0
+
+def test_drop_remainder_drops_only_the_short_last_batch():
+    sizes = lambda n, drop: [len(b) for b in loader.batch_indices(n, 8, shuffle=True, drop_remainder=drop)]
+    assert sizes(43, True) == [8] * 5 and sizes(43, False) == [8] * 5 + [3]
+    assert sizes(40, True) == sizes(40, False) == [8] * 5
+    kept = np.concatenate(loader.batch_indices(43, 8, shuffle=True, drop_remainder=False, seed=2, epoch=1))
+    np.testing.assert_array_equal(np.sort(kept), np.arange(43))  # a permutation: every sample once
+
+
+def test_concat_draws_each_sample_by_its_global_index(synthetic_root):
+    train = data.ModelNet40(synthetic_root, "train", "partial", num_points=64, seed=0)
+    both = data.Concat([train, train])  # the same shapes twice: only the seeding can tell the halves apart
+    n = len(train)
+    for i in (0, 3):
+        a, b = both.get(i, epoch=2), both.get(n + i, epoch=2)
+        assert not np.array_equal(a["transform_gt"], b["transform_gt"])
+        assert not np.array_equal(a["points_src"], b["points_src"])
+        np.testing.assert_array_equal(a["points_src"], train.get(i, epoch=2)["points_src"])  # first source unchanged
+        np.testing.assert_array_equal(b["points_src"], train.get(i, epoch=2, draw=n + i)["points_src"])
+    val = data.ModelNet40(synthetic_root, "val", "partial", num_points=64)
+    vals = data.Concat([val, val])  # the deterministic sets stay the official ones of each source
+    np.testing.assert_array_equal(vals[len(val) + 1]["points_src"], val[1]["points_src"])
 
 
 def test_loader_propagates_errors():

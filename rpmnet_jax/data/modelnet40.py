@@ -196,7 +196,7 @@ class ModelNet40:
       categories: override the category names to keep (filtered in file order).
 
     ``ds[i]`` → dict of ``points_src (J, 6)``, ``points_ref (K, 6)``, ``transform_gt (3, 4)`` (maps source
-    onto reference), ``points_raw``, ``label``, ``idx``. Training samples depend on ``ds.epoch``.
+    onto reference), ``points_raw``, ``label``, ``idx``; ``ds.get(i, epoch)`` draws training samples of an epoch.
     """
 
     def __init__(self, root, split: str, protocol: str, num_points: int = 1024, rot_mag: float = 45.0,
@@ -220,7 +220,6 @@ class ModelNet40:
         self.num_points, self.rot_mag, self.trans_mag = num_points, rot_mag, trans_mag
         self.partial_keep = tuple(partial_keep)
         self.seed = int(np.random.SeedSequence().entropy % 2**31) if seed is None else int(seed)
-        self.epoch = 0
 
     @property
     def deterministic(self) -> bool:
@@ -229,17 +228,14 @@ class ModelNet40:
     def __len__(self) -> int:
         return int(self.points.shape[0])
 
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = int(epoch)
-
-    def get(self, idx: int, epoch: int | None = None) -> dict:
-        """Sample ``idx`` (of ``epoch`` for training; default ``self.epoch``)."""
+    def get(self, idx: int, epoch: int = 0, draw: int | None = None) -> dict:
+        """Sample ``idx``; for training, its draw of ``epoch`` seeded by ``draw`` (default ``idx``)."""
         if not 0 <= idx < len(self):
             raise IndexError(f"index {idx} out of range for {len(self)} samples")
         if self.deterministic:
             new_stream = lambda: np.random.RandomState(idx)
         else:
-            rng = np.random.RandomState([self.seed, self.epoch if epoch is None else int(epoch), idx])
+            rng = np.random.RandomState([self.seed, int(epoch), idx if draw is None else int(draw)])
             new_stream = lambda: rng
         sample = make_pair(self.points[idx], self.protocol, new_stream, deterministic=self.deterministic,
                            num_points=self.num_points, rot_mag=self.rot_mag, trans_mag=self.trans_mag,
@@ -277,7 +273,11 @@ class Spread(Head):
 
 
 class Concat:
-    """Datasets one after another (e.g. real ModelNet40 shapes next to synthetic ones); same ``get`` API."""
+    """Datasets one after another (e.g. real ModelNet40 shapes next to synthetic ones); same ``get`` API.
+
+    Training draws are seeded by the global index, so sample ``i`` of each source gets its own rotation, crop
+    and noise; ``val``/``test`` samples stay those of their source (the official deterministic sets).
+    """
 
     def __init__(self, datasets):
         self.datasets = list(datasets)
@@ -288,11 +288,11 @@ class Concat:
     def __len__(self) -> int:
         return int(self.offsets[-1])
 
-    def get(self, idx: int, epoch: int | None = None) -> dict:
+    def get(self, idx: int, epoch: int = 0, draw: int | None = None) -> dict:
         if not 0 <= idx < len(self):
             raise IndexError(f"index {idx} out of range for {len(self)} samples")
         which = int(np.searchsorted(self.offsets, idx, side="right") - 1)
-        return self.datasets[which].get(idx - int(self.offsets[which]), epoch)
+        return self.datasets[which].get(idx - int(self.offsets[which]), epoch, draw=idx if draw is None else draw)
 
     def __getitem__(self, idx: int) -> dict:
         return self.get(int(idx))
