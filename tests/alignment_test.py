@@ -218,6 +218,19 @@ def test_nan_rows_are_dropped_with_a_warning(tmp_path, capsys, random_weights):
     assert code == 0 and "dropped 5 points" in err and "confidence" in out
 
 
+def test_crafted_checkpoint_is_refused_before_it_runs(tmp_path, capsys):
+    pytest.importorskip("torch")
+    from conftest import crafted_checkpoint
+    marker = tmp_path / "ran"
+    src = _write(tmp_path, "src.npy", *_shape(n=100))
+    out_t = tmp_path / "T.txt"
+    code, _, err = _run_cli([src, src, "--checkpoint", crafted_checkpoint(tmp_path / "evil.pth", marker),
+                             "--out-transform", str(out_t)], capsys)
+    assert code == 2 and err.startswith("rpmnet-register: error:") and "refused" in err
+    assert len(err.strip().splitlines()) == 1, err
+    assert not marker.exists() and not out_t.exists()
+
+
 def test_missing_checkpoint_is_an_error(tmp_path, capsys):
     src = _write(tmp_path, "src.npy", *_shape(n=100))
     code, _, err = _run_cli([src, src, "--checkpoint", str(tmp_path / "none.npz")], capsys)

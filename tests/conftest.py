@@ -33,6 +33,24 @@ def float64():
             yield
 
 
+class _Payload:
+    """Unpickling this runs ``touch marker``: what a crafted checkpoint would do."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return os.system, (f"touch {self.marker}",)
+
+
+def crafted_checkpoint(path, marker) -> str:
+    """A ``.pth`` whose unpickling would create ``marker``, next to real tensors (needs torch)."""
+    import torch
+
+    torch.save({"state_dict": {"feat_extractor.prepool.0.bias": torch.zeros(3)}, "x": _Payload(marker)}, path)
+    return str(path)
+
+
 def random_cloud(rng: np.random.Generator, batch: int, n: int, scale: float = 1.0) -> np.ndarray:
     """``(batch, n, 6)`` float32 points in a cube with random unit normals."""
     xyz = rng.uniform(-scale, scale, size=(batch, n, 3))

@@ -5,7 +5,7 @@ import pytest
 import rpmnet_jax
 from rpmnet_jax.weights import convert
 
-from conftest import require_fixtures
+from conftest import crafted_checkpoint, require_fixtures
 
 
 def _official_state_dict():
@@ -40,9 +40,14 @@ def test_npz_with_and_without_prefix_and_state_dict_wrapper(tmp_path):
 
 
 def test_pth_checkpoint(tmp_path):
+    """The official checkpoint layout (state dict, optimizer state, step) loads with the tensors-only reader."""
     torch = pytest.importorskip("torch")
     sd = {k: torch.from_numpy(v) for k, v in _official_state_dict().items()}
-    torch.save({"state_dict": sd, "step": 3}, tmp_path / "model.pth")
+    weights = [torch.nn.Parameter(v.clone()) for v in sd.values()]
+    adam = torch.optim.Adam(weights)
+    sum(w.sum() for w in weights).backward()
+    adam.step()
+    torch.save({"state_dict": sd, "optimizer": adam.state_dict(), "step": 3}, tmp_path / "model.pth")
     params = convert.params_from_torch(tmp_path / "model.pth")
     np.testing.assert_array_equal(params["feat_extractor"]["prepool_0"]["kernel"],
                                   sd["feat_extractor.prepool.0.weight"].numpy()[:, :, 0, 0].T)
@@ -64,3 +69,20 @@ def test_errors(tmp_path):
         convert.params_from_torch(tmp_path / "w.txt")
     with pytest.raises(ValueError, match="lack the module"):
         convert.params_from_torch({"feat_extractor.prepool.0.bias": np.zeros(3)})
+
+
+def test_crafted_pickle_is_refused_and_never_runs(tmp_path):
+    pytest.importorskip("torch")
+    marker = tmp_path / "ran"
+    path = crafted_checkpoint(tmp_path / "evil.pth", marker)
+    with pytest.raises(ValueError, match="refused") as e:
+        rpmnet_jax.load_params(path)
+    assert "\n" not in str(e.value) and "posix.system" in str(e.value)
+    assert not marker.exists()
+    plain = tmp_path / "evil.pt"  # a bare pickle, not torch's zip layout
+    import pickle
+    from conftest import _Payload
+    plain.write_bytes(pickle.dumps(_Payload(marker)))
+    with pytest.raises(ValueError, match="refused"):
+        rpmnet_jax.load_params(str(plain))
+    assert not marker.exists()

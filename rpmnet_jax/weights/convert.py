@@ -3,7 +3,7 @@
 Official names look like ``feat_extractor.prepool.0.weight``; ours are
 ``params["feat_extractor"]["prepool_0"]["kernel"]``. Convolutions with 1×1 kernels and linear layers
 become Dense kernels ``(in, out)``; GroupNorm ``weight`` becomes ``scale``. torch is imported only to
-read ``.pth`` files.
+read ``.pth`` files, with its tensors-only unpickler (a file is never allowed to run code).
 """
 
 from __future__ import annotations
@@ -29,6 +29,29 @@ def _to_numpy(x) -> np.ndarray:
     return np.asarray(x)
 
 
+def _torch_load(path: str):
+    """A ``.pth`` read with torch's tensors-only unpickler: a file that would run code or build other objects is
+    refused (ValueError, one line) and nothing in it runs."""
+    try:
+        import torch
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise ImportError("reading .pth checkpoints needs torch: pip install 'rpmnet_jax[torch]'") from e
+    import pickle
+    import warnings
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # torch's notes on pickle protocols
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        lines = [l.strip() for l in str(e).splitlines()[1:] if l.strip()]
+        reason = "; ".join(l for l in lines if not l.startswith(("Please file", "Check the documentation")))
+        raise ValueError(f"{path}: refused: not a checkpoint of tensors only ({reason or 'unknown content'}); "
+                         "pickled code or objects are never loaded") from None
+    except (RuntimeError, EOFError, OSError) as e:
+        raise ValueError(f"{path}: cannot read as a torch checkpoint ({type(e).__name__}: "
+                         f"{str(e).splitlines()[0] if str(e) else ''})") from None
+
+
 def load_state_dict(source) -> dict[str, np.ndarray]:
     """Official state dict as NumPy arrays from a mapping, an ``.npz`` or a ``.pth`` checkpoint."""
     if isinstance(source, (str, os.PathLike)):
@@ -39,11 +62,7 @@ def load_state_dict(source) -> dict[str, np.ndarray]:
             with np.load(path) as data:
                 source = {k: data[k] for k in data.files}
         elif path.endswith((".pth", ".pt")):
-            try:
-                import torch
-            except ImportError as e:  # pragma: no cover - depends on the environment
-                raise ImportError("reading .pth checkpoints needs torch: pip install 'rpmnet_jax[torch]'") from e
-            source = torch.load(path, map_location="cpu", weights_only=False)
+            source = _torch_load(path)
         else:
             raise ValueError(f"unknown weights format {path!r}: expected .npz or .pth")
     if not isinstance(source, Mapping):
