@@ -39,10 +39,9 @@ def test_cloud_files_round_trip(tmp_path, ext, with_normals):
     path = str(tmp_path / f"cloud{ext}")
     cloud_io.write_cloud(path, pts, nrm if with_normals else None)
     got, got_n = cloud_io.read_cloud(path)
-    single = ext in (".ply", ".pcd")
-    np.testing.assert_allclose(got, pts, rtol=1e-6 if single else 1e-7, atol=1e-4 if single else 1e-5)
+    np.testing.assert_array_equal(got, pts)  # float64 (text: 17 digits) reads back exactly
     if with_normals:
-        np.testing.assert_allclose(got_n, nrm, atol=1e-6)
+        np.testing.assert_array_equal(got_n, nrm)
     else:
         assert got_n is None
 
@@ -64,10 +63,11 @@ def test_transform_files_parse_back(tmp_path):
     t = np.eye(4)
     t[:3, :3] = Rotation.from_euler("xyz", [10, -20, 30], degrees=True).as_matrix()
     t[:3, 3] = [1.5, -2, 1e3]
+    t[:3, 3] = [1.5, -2, 4.1e6 + 1 / 3]  # a georeferenced translation
     for name in ("t.txt", "t.json"):
         cloud_io.write_transform(str(tmp_path / name), t)
-        np.testing.assert_allclose(cloud_io.read_transform(str(tmp_path / name)), t, rtol=1e-9)
-    np.testing.assert_allclose(np.loadtxt(tmp_path / "t.txt"), t, rtol=1e-9)
+        np.testing.assert_array_equal(cloud_io.read_transform(str(tmp_path / name)), t)
+    np.testing.assert_array_equal(np.loadtxt(tmp_path / "t.txt"), t)
 
 
 def test_estimated_normals_agree_with_analytic():
@@ -206,6 +206,27 @@ def test_cli_errors_are_one_line_with_exit_2(tmp_path, capsys, random_weights, c
     assert code == 2, err
     assert err.startswith("rpmnet-register: error:") and len(err.strip().splitlines()) == 1, err
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("ext", [".ply", ".pcd", ".xyz", ".csv", ".npy", ".npz"])
+def test_out_aligned_keeps_georeferenced_precision(tmp_path, capsys, random_weights, ext):
+    """A 50 m scan 4,100 km from the origin (UTM-like): the written aligned points are the written transform
+    applied in float64, to 1e-6 of the scan's size (float32 files would be off by up to 0.25 m, 5e-3)."""
+    pts, nrm = _shape(seed=9, n=600)
+    offset = np.array([4.1e6, 5.0e5, 120.0])
+    src_pts = pts * 25.0 + offset
+    ref_pts = src_pts @ Rotation.from_euler("z", 20, degrees=True).as_matrix().T + np.array([3.0, -2.0, 0.5])
+    src, ref = _write(tmp_path, "src.npy", src_pts, nrm), _write(tmp_path, "ref.npy", ref_pts)
+    out_t, out_a = tmp_path / "T.json", tmp_path / f"aligned{ext}"
+    code, _, err = _run_cli([src, ref, "--checkpoint", random_weights, "--num-points", "128", "--iters", "1",
+                             "--init", "local", "--out-transform", str(out_t), "--out-aligned", str(out_a)], capsys)
+    assert code == 0, err
+    t = cloud_io.read_transform(str(out_t))
+    expected = src_pts @ t[:3, :3].T + t[:3, 3]
+    got, got_n = cloud_io.read_cloud(str(out_a))
+    size = np.linalg.norm(src_pts.max(0) - src_pts.min(0))
+    assert np.abs(got - expected).max() < 1e-6 * size
+    np.testing.assert_allclose(got_n, nrm @ t[:3, :3].T, atol=1e-12)
 
 
 def test_nan_rows_are_dropped_with_a_warning(tmp_path, capsys, random_weights):

@@ -124,42 +124,44 @@ def _read_numpy(path):
 
 
 def write_cloud(path: str, points: np.ndarray, normals: np.ndarray | None = None) -> None:
-    """Writes ``points (N, 3)`` (and ``normals``) in the format of ``path``'s extension."""
+    """Writes ``points (N, 3)`` (and ``normals``) in the format of ``path``'s extension, in float64 (text:
+    17 significant digits), so georeferenced coordinates read back as they were."""
     ext = _ext(path)
+    points = np.asarray(points, np.float64)
+    normals = None if normals is None else np.asarray(normals, np.float64)
     arr = points if normals is None else np.concatenate([points, normals], axis=1)
-    arr = np.asarray(arr, np.float64)
     names = ["x", "y", "z"] + ([] if normals is None else ["nx", "ny", "nz"])
     if ext == ".ply":
         from plyfile import PlyData, PlyElement
-        table = np.empty(len(arr), dtype=[(n, "f4") for n in names])
+        table = np.empty(len(arr), dtype=[(n, "f8") for n in names])
         for i, n in enumerate(names):
             table[n] = arr[:, i]
         PlyData([PlyElement.describe(table, "vertex")]).write(path)
     elif ext == ".pcd":
         fields = ["x", "y", "z"] + ([] if normals is None else ["normal_x", "normal_y", "normal_z"])
         k = len(fields)
-        header = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS {' '.join(fields)}\nSIZE {' '.join(['4'] * k)}\n"
+        header = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS {' '.join(fields)}\nSIZE {' '.join(['8'] * k)}\n"
                   f"TYPE {' '.join(['F'] * k)}\nCOUNT {' '.join(['1'] * k)}\nWIDTH {len(arr)}\nHEIGHT 1\n"
                   f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(arr)}\nDATA binary\n")
         with open(path, "wb") as f:
             f.write(header.encode("ascii"))
-            f.write(arr.astype("<f4").tobytes())
+            f.write(arr.astype("<f8").tobytes())
     elif ext == ".npy":
         np.save(path, arr)
     elif ext == ".npz":
         np.savez(path, points=points, **({} if normals is None else {"normals": normals}))
     else:
-        np.savetxt(path, arr, delimiter="," if ext == ".csv" else " ", fmt="%.8g")
+        np.savetxt(path, arr, delimiter="," if ext == ".csv" else " ", fmt="%.17g")
 
 
 def write_transform(path: str, transform: np.ndarray, **extra) -> None:
-    """A 4×4 matrix as ``.txt`` (4 rows, ``numpy.loadtxt`` reads it back) or ``.json``."""
+    """A 4×4 matrix as ``.txt`` (4 rows, ``numpy.loadtxt`` reads it back) or ``.json``, exact in float64."""
     transform = np.asarray(transform, np.float64)
     if path.lower().endswith(".json"):
         with open(path, "w") as f:
             json.dump({"transform": transform.tolist(), **extra}, f, indent=2)
     else:
-        np.savetxt(path, transform, fmt="%.10g")
+        np.savetxt(path, transform, fmt="%.17g")
 
 
 def read_transform(path: str) -> np.ndarray:
