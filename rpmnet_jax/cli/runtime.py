@@ -1,11 +1,13 @@
-"""Process set-up for the command-line tools: library log messages on the terminal; large pages for XLA's CPU
-buffers.
+"""Process set-up for the command-line tools: library log messages on the terminal; for training, large pages
+for XLA's CPU buffers.
 
 RPM-Net's activations are ``(B, N, 64, C)`` tensors of hundreds of MB; XLA's CPU runtime allocates them
 afresh through ``malloc`` and the first touch of every 4 KiB page faults. With glibc's ``hugetlb`` tunable
 malloc asks for transparent huge pages, which makes the memory-bound parts of a training step ~1.4x faster
-(measured: 18.6 s → 13.0 s per B=8, 717-point step of autodiff gradients on a 2-core CPU). The tunable is
-read only at process start, so a CLI re-executes itself once with it set.
+(measured: 18.6 s → 13.0 s per B=8, 717-point step of autodiff gradients on a 2-core CPU). The tunables also
+keep freed memory in the process (trim threshold 64 GiB): right for a long training run that reallocates the
+same buffers every step, wrong for one-shot tools, so only ``rpmnet-train`` asks for them. They are read only
+at process start, so the training CLI re-executes itself once with them set.
 """
 
 from __future__ import annotations
@@ -30,8 +32,7 @@ def _thp_available() -> bool:
 def use_huge_pages() -> None:
     """Re-executes the current command with the malloc tunables set (Linux/glibc only; no-op otherwise).
 
-    Call it first thing in a ``__main__`` block, never from library code. Set ``RPMNET_NO_HUGEPAGES=1`` to
-    opt out.
+    Training CLI only (through :func:`run`), never library code. Set ``RPMNET_NO_HUGEPAGES=1`` to opt out.
     """
     if (not sys.platform.startswith("linux") or os.environ.get(_OPT_OUT) or "hugetlb" in
             os.environ.get("GLIBC_TUNABLES", "") or not _thp_available() or not hasattr(sys, "orig_argv")):
@@ -88,10 +89,11 @@ def enable_compilation_cache() -> str | None:
     return folder
 
 
-def run(main) -> None:
-    """A console script's whole life: huge pages, the compilation cache, library logs on the terminal, then
-    ``sys.exit(main())``."""
-    use_huge_pages()
+def run(main, huge_pages: bool = False) -> None:
+    """A console script's whole life: huge pages (``huge_pages``: training only), the compilation cache, library
+    logs on the terminal, then ``sys.exit(main())``."""
+    if huge_pages:
+        use_huge_pages()
     enable_compilation_cache()
     show_library_logs()
     sys.exit(main())

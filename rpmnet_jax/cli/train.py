@@ -110,8 +110,8 @@ def main(argv=None):
 
 
 def entry() -> None:
-    """Console script ``rpmnet-train``."""
-    runtime.run(main)
+    """Console script ``rpmnet-train`` (with the training malloc tunables, :mod:`rpmnet_jax.cli.runtime`)."""
+    runtime.run(main, huge_pages=True)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,43 @@
+"""CLI process set-up: the malloc tunables for training only, with an opt-out."""
+
+import importlib
+import os
+import subprocess
+import sys
+
+import pytest
+
+from rpmnet_jax.cli import runtime
+
+
+@pytest.mark.parametrize("module, tuned", [("register", False), ("evaluate", False), ("eval_scans", False),
+                                           ("train", True)])
+def test_only_training_asks_for_the_malloc_tunables(monkeypatch, module, tuned):
+    calls = []
+    monkeypatch.setattr(runtime, "use_huge_pages", lambda: calls.append(module))
+    monkeypatch.setattr(runtime, "enable_compilation_cache", lambda: None)
+    monkeypatch.setattr(runtime, "show_library_logs", lambda: None)
+    cli = importlib.import_module(f"rpmnet_jax.cli.{module}")
+    monkeypatch.setattr(cli, "main", lambda: 0)
+    with pytest.raises(SystemExit) as e:
+        cli.entry()
+    assert e.value.code == 0 and calls == ([module] if tuned else [])
+
+
+_SHOW = ("import os; from rpmnet_jax.cli import runtime; "
+         "runtime.run(lambda: print('tunables', os.environ.get('GLIBC_TUNABLES')) or 0, huge_pages={})")
+
+
+def _tunables(huge_pages: bool, **env) -> str:
+    env = {k: v for k, v in os.environ.items() if k not in ("GLIBC_TUNABLES", "RPMNET_NO_HUGEPAGES")} | env
+    out = subprocess.run([sys.executable, "-c", _SHOW.format(huge_pages)], capture_output=True, text=True,
+                         env=dict(env, RPMNET_COMPILATION_CACHE="off"), check=True)
+    return out.stdout.split("tunables ", 1)[1].strip()
+
+
+def test_training_reexecutes_with_the_tunables_and_the_opt_out_holds():
+    if not (sys.platform.startswith("linux") and runtime._thp_available()):
+        pytest.skip("transparent huge pages are not available on this machine")
+    assert "glibc.malloc.hugetlb=1" in _tunables(True) and "trim_threshold" in _tunables(True)
+    assert _tunables(True, RPMNET_NO_HUGEPAGES="1") == "None"
+    assert _tunables(False) == "None"
