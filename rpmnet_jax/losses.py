@@ -32,5 +32,5 @@ def training_loss(params, batch, cfg: config_lib.RPMNetConfig = config_lib.RPMNe
     ``batch``: ``points_src (B, J, 6)``, ``points_ref (B, K, 6)``, ``transform_gt (B, 3, 4)``.
     """
     reg = registration.register(params, batch["points_src"], batch["points_ref"], cfg,
-                                num_iters=cfg.num_train_reg_iters)
+                                num_iters=cfg.num_train_reg_iters, unroll=True)
     return loss_terms(reg, batch, cfg)["total"]

@@ -97,8 +97,13 @@ def _check_iters(cfg, num_iters) -> int:
     return num_iters
 
 
-def _iterate(params, xyz_src, hood_src: Neighbourhoods, xyz_ref, feat_ref, init, cfg, num_iters) -> Registration:
-    """The ``lax.scan`` over iterations from the transforms ``init (B, 3, 4)``; every input has batch ``B``."""
+def _iterate(params, xyz_src, hood_src: Neighbourhoods, xyz_ref, feat_ref, init, cfg, num_iters,
+             unroll: bool = False) -> Registration:
+    """The ``lax.scan`` over iterations from the transforms ``init (B, 3, 4)``; every input has batch ``B``.
+
+    ``unroll`` unrolls the loop: faster to differentiate (no stacked per-iteration residual buffers to
+    zero and fill; training step 3.45 -> 3.10 s) but slower to run forward only (5 iterations at 1024
+    points: 0.30 -> 0.33 s), so training unrolls and inference does not."""
 
     def iteration(transform, _):
         transform = lax.stop_gradient(transform)
@@ -111,15 +116,16 @@ def _iterate(params, xyz_src, hood_src: Neighbourhoods, xyz_ref, feat_ref, init,
         new_transform, weighted_ref, _ = soft_procrustes(perm, xyz_src, xyz_ref)
         return new_transform, Registration(new_transform, perm, weighted_ref, alpha, beta)
 
-    _, out = lax.scan(iteration, init, None, length=num_iters)
+    _, out = lax.scan(iteration, init, None, length=num_iters, unroll=unroll)
     return out
 
 
 def register(params, src, ref, cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(),
-             num_iters: int | None = None) -> Registration:
+             num_iters: int | None = None, unroll: bool = False) -> Registration:
     """Registers ``src (B, J, 6)`` onto ``ref (B, K, 6)`` (xyz + unit normals).
 
     ``num_iters`` defaults to ``cfg.num_reg_iters``; under ``jax.jit`` pass it as a static argument.
+    ``unroll`` (static) unrolls the iterations, which pays when the call is differentiated (training).
     Returns a :class:`Registration`; ``.transform (B, 3, 4)`` maps the source onto the reference.
     """
     input_checks.check_pair(src, ref)
@@ -131,7 +137,7 @@ def register(params, src, ref, cfg: config_lib.RPMNetConfig = config_lib.RPMNetC
     feat_ref = features(params, xyz_ref, group(xyz_ref, norm_ref, cfg), cfg)
     hood_src = group(xyz_src, norm_src, cfg)
     init = se3.identity((src.shape[0],), xyz_src.dtype)
-    return _iterate(params, xyz_src, hood_src, xyz_ref, feat_ref, init, cfg, num_iters)
+    return _iterate(params, xyz_src, hood_src, xyz_ref, feat_ref, init, cfg, num_iters, unroll)
 
 
 def register_from(params, src, ref, init, cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(),

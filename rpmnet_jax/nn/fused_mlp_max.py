@@ -45,25 +45,42 @@ def mlp_max_layerwise(x, layers: Sequence[Layer], groups: int = 8, eps: float = 
     return jnp.max(h, axis=2)
 
 
-def _inference_forward(x, layers: Sequence[Layer], groups: int, eps: float):
-    """Forward pass with one memory pass less per layer, used whenever no gradient is taken.
+def _layer(h, layer: Layer, groups: int, eps: float):
+    """One ``Dense → GroupNorm → ReLU`` with the bias folded in: ``(u, mean_g, inv_g)``, where ``u = h W``
+    (the bias is never added to the ``(B, N, k, C)`` product on its own) and ``mean_g, inv_g (B, G)`` are
+    the group statistics of ``z = u + b`` (channel means shift by ``b``, variances do not)."""
+    u = h @ layer.kernel
+    b, c = u.shape[0], u.shape[-1]
+    rows = u.reshape(b, -1, c)
+    mean_u = jnp.mean(rows, axis=1)
+    var_c = jnp.mean(jnp.square(rows - mean_u[:, None, :]), axis=1)
+    mean_g, inv_g = gn.pool_group_stats(mean_u + layer.bias, var_c, groups, eps)
+    return u, mean_g, inv_g
 
-    The bias is never added to the ``(B, N, k, C)`` product on its own: GroupNorm statistics of
-    ``z = u + b`` follow from those of ``u = h W`` (channel means shift by ``b``, variances do not), and
-    ``b`` is folded into the per-channel shift of the activation. Same values as
-    :func:`mlp_max_layerwise` to float32 rounding (1e-6).
-    """
-    h = x
-    for i, layer in enumerate(layers):
-        u = h @ layer.kernel
-        b, c = u.shape[0], u.shape[-1]
-        rows = u.reshape(b, -1, c)
-        mean_u = jnp.mean(rows, axis=1)
-        var_c = jnp.mean(jnp.square(rows - mean_u[:, None, :]), axis=1)
-        mean_g, inv_g = gn.pool_group_stats(mean_u + layer.bias, var_c, groups, eps)
-        a = gn.per_channel(inv_g, c, u.ndim) * layer.scale
-        h = jax.nn.relu(u * a + (layer.bias * a + layer.shift - gn.per_channel(mean_g, c, u.ndim) * a))
-    return jnp.max(h, axis=2)
+
+def _pre_activation(u, mean_g, inv_g, layer: Layer):
+    """``GroupNorm(u + b)`` as one multiply-add per element: ``u * a + (b a + shift - mean a)``,
+    ``a = inv * scale``."""
+    c = u.shape[-1]
+    a = gn.per_channel(inv_g, c, u.ndim) * layer.scale
+    return u * a + (layer.bias * a + layer.shift - gn.per_channel(mean_g, c, u.ndim) * a)
+
+
+def _forward(x, layers: Sequence[Layer], groups: int, eps: float):
+    """The last layer's activations ``(B, N, k, C_out)`` and each layer's ``(u, mean_g, inv_g)``."""
+    h, saved = x, []
+    for layer in layers:
+        stats = _layer(h, layer, groups, eps)
+        h = jax.nn.relu(_pre_activation(*stats, layer))
+        saved.append(stats)
+    return h, saved
+
+
+def _inference_forward(x, layers: Sequence[Layer], groups: int, eps: float):
+    """Forward pass used whenever no gradient is taken (one memory pass less per layer than
+    :func:`mlp_max_layerwise`: the bias is folded into the activation). Same values to float32 rounding
+    (1e-6)."""
+    return jnp.max(_forward(x, layers, groups, eps)[0], axis=2)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
@@ -83,23 +100,6 @@ def _reference_bwd(groups, eps, vjp, d_out):
 
 
 mlp_max_reference.defvjp(_reference_fwd, _reference_bwd)
-
-
-def _activate(z, mean_g, inv_g, layer: Layer):
-    """``relu(GroupNorm(z))`` in torch's arithmetic: ``z * (inv * scale) + (shift - mean * inv * scale)``."""
-    c = z.shape[-1]
-    a = gn.per_channel(inv_g, c, z.ndim) * layer.scale
-    return jax.nn.relu(z * a + (layer.shift - gn.per_channel(mean_g, c, z.ndim) * a))
-
-
-def _forward(x, layers, groups, eps):
-    h, saved = x, []
-    for layer in layers:
-        z = h @ layer.kernel + layer.bias
-        mean_g, inv_g = gn.group_stats(z, groups, eps)
-        h = _activate(z, mean_g, inv_g, layer)
-        saved.append((z, mean_g, inv_g, h > 0))
-    return h, saved
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
@@ -124,18 +124,15 @@ def _mlp_max_bwd(groups, eps, res, d_out):
     dh = jnp.where(hit, d_out[:, :, None, :], 0.0)  # (B, N, k, C): gradient reaching the last ReLU
     grads = []
     for i in range(len(layers) - 1, -1, -1):
-        layer, (z, mean_g, inv_g, active) = layers[i], saved[i]
-        c = z.shape[-1]
-        axes = tuple(range(z.ndim - 1))
-        dz, d_scale, d_shift = gn.backward(jnp.where(active, dh, 0.0), gn.normalise(z, mean_g, inv_g), inv_g,
-                                           layer.scale, groups)
-        if i == 0:
-            h_in = x
-        else:
-            h_in = _activate(*saved[i - 1][:3], layers[i - 1])
+        layer, (u, mean_g, inv_g) = layers[i], saved[i]
+        c = u.shape[-1]
+        active = _pre_activation(u, mean_g, inv_g, layer) > 0
+        xhat = (u - (gn.per_channel(mean_g, c, u.ndim) - layer.bias)) * gn.per_channel(inv_g, c, u.ndim)
+        dz, d_scale, d_shift = gn.backward(jnp.where(active, dh, 0.0), xhat, inv_g, layer.scale, groups)
+        h_in = x if i == 0 else jax.nn.relu(_pre_activation(*saved[i - 1], layers[i - 1]))
         c_in = h_in.shape[-1]
         d_kernel = h_in.reshape(-1, c_in).T @ dz.reshape(-1, c)
-        d_bias = jnp.sum(dz, axis=axes)
+        d_bias = jnp.sum(dz.reshape(-1, c), axis=0)
         grads.append(Layer(d_kernel, d_bias, d_scale, d_shift))
         dh = dz @ layer.kernel.T
     return dh, tuple(reversed(grads))

@@ -27,6 +27,14 @@ def _dense(fan_in: int, features: int, name: str) -> nn.Dense:
     return nn.Dense(features, kernel_init=_uniform(bound), bias_init=_uniform(bound), name=name)
 
 
+def _on_rows(dense: nn.Dense, h_BxNxC):
+    """``dense`` applied to ``h (B, N, C)`` as one ``(B*N, C)`` matrix: the kernel gradient is then one plain
+    GEMM, where the 3-D form makes XLA transpose the whole activation first (ParameterNet backward 2-3x
+    faster)."""
+    b, n, c = h_BxNxC.shape
+    return dense(h_BxNxC.reshape(b * n, c)).reshape(b, n, -1)
+
+
 def _group_norm(groups: int, name: str) -> GroupNorm:
     return GroupNorm(groups=groups, name=name)
 
@@ -76,9 +84,9 @@ class FeatureNet(nn.Module):
             layers.append(fused_mlp_max.Layer(kernel, bias, scale, shift))
         pool = fused_mlp_max.mlp_max if self.fused else fused_mlp_max.mlp_max_reference
         h_BxNxC = pool(x_BxNxKxC, tuple(layers), 8)
-        h_BxNxC = nn.relu(_group_norm(8, "postpool_1")(_dense(2 * d, 2 * d, "postpool_0")(h_BxNxC)))
-        h_BxNxC = nn.relu(_group_norm(8, "postpool_4")(_dense(2 * d, d, "postpool_3")(h_BxNxC)))
-        h_BxNxC = _dense(d, d, "postpool_6")(h_BxNxC)
+        h_BxNxC = nn.relu(_group_norm(8, "postpool_1")(_on_rows(_dense(2 * d, 2 * d, "postpool_0"), h_BxNxC)))
+        h_BxNxC = nn.relu(_group_norm(8, "postpool_4")(_on_rows(_dense(2 * d, d, "postpool_3"), h_BxNxC)))
+        h_BxNxC = _on_rows(_dense(d, d, "postpool_6"), h_BxNxC)
         return h_BxNxC / jnp.linalg.norm(h_BxNxC, axis=-1, keepdims=True)
 
 
@@ -96,7 +104,7 @@ class ParameterNet(nn.Module):
         h = jnp.concatenate([src, ref], axis=1)  # (B, J+K, 4)
         layers = [(4, 64, 8), (64, 64, 8), (64, 64, 8), (64, 128, 8), (128, 1024, 16)]
         for i, (fan_in, out, groups) in enumerate(layers):
-            h = _dense(fan_in, out, f"prepool_{3 * i}")(h)
+            h = _on_rows(_dense(fan_in, out, f"prepool_{3 * i}"), h)
             h = nn.relu(_group_norm(groups, f"prepool_{3 * i + 1}")(h))
         h = jnp.max(h, axis=1)  # (B, 1024)
         h = nn.relu(_group_norm(16, "postpool_1")(_dense(1024, 512, "postpool_0")(h)))
