@@ -1,3 +1,4 @@
+import dataclasses
 import json
 import os
 import shutil
@@ -6,6 +7,7 @@ import sys
 
 import jax
 import numpy as np
+import optax
 import pytest
 
 from rpmnet_jax import config as config_lib
@@ -32,13 +34,28 @@ def tiny_batch(tmp_path_factory):
     return {k: np.stack([s[k] for s in samples]) for k in training.DEVICE_KEYS}
 
 
-def test_first_step_loss_equals_the_training_loss_and_descends(tiny_batch):
+def _grads(cfg, params, batch):
+    return jax.tree.map(np.asarray, jax.jit(jax.grad(losses.training_loss), static_argnums=2)(params, batch, cfg.model))
+
+
+def _states(tree, kind):
+    """The optimizer sub-states of type ``kind`` (e.g. ``optax.ScaleByAdamState``) in ``tree``."""
+    return [x for x in jax.tree.leaves(tree, is_leaf=lambda x: isinstance(x, kind)) if isinstance(x, kind)]
+
+
+def test_first_step_golden_loss_adam_update_and_descent(tiny_batch):
+    """The first loss is the stored value (recorded when this test was written: any change of data, init,
+    network or loss moves it); the first update is Adam's by hand, -lr·g/(|g|+eps); the loss then descends."""
     cfg = tiny_cfg("unused")
     state = training.create_train_state(jax.random.PRNGKey(0), cfg)
-    expected = float(jax.jit(losses.training_loss, static_argnums=2)(state.params, tiny_batch, cfg.model))
+    before = jax.tree.map(np.asarray, state.params)
+    grads = _grads(cfg, state.params, tiny_batch)
     step = training.make_train_step(cfg)
     state, scalars = step(state, tiny_batch)
-    np.testing.assert_allclose(scalars["loss"], expected, rtol=1e-5)
+    assert float(scalars["loss"]) == pytest.approx(0.462150455, rel=1e-5)
+    expected = jax.tree.map(lambda p, g: p - cfg.lr * g / (np.abs(g) + 1e-8), before, grads)
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=0, atol=cfg.lr * 1e-3),
+                 jax.tree.map(np.asarray, state.params), expected)
     first = float(scalars["loss"])
     for _ in range(15):
         state, scalars = step(state, tiny_batch)
@@ -47,14 +64,20 @@ def test_first_step_loss_equals_the_training_loss_and_descends(tiny_batch):
 
 
 def test_ema_schedule_and_clipping(tiny_batch):
-    """EMA after one step is decay·init + (1-decay)·params (by hand); warmup starts at lr 0, so the first
-    update of a warmed-up run is zero; clipping keeps the step finite and the loss the same."""
+    """EMA after two steps is decay·(decay·p0 + (1-decay)·p0) + (1-decay)·p (by hand); warmup starts at lr 0, so
+    the first update is zero; clipping: Adam's first moment is (1-b1)·g·clip/|g| (by hand)."""
     cfg = tiny_cfg("unused", ema_decay=0.9, lr_schedule="cosine", warmup_steps=3, lr_final=1e-5, clip_norm=0.1)
     state = training.create_train_state(jax.random.PRNGKey(0), cfg, total_steps=10)
     init = jax.tree.map(np.asarray, state.params)
+    grads = _grads(cfg, state.params, tiny_batch)
+    norm = np.sqrt(sum(np.sum(np.asarray(g, np.float64) ** 2) for g in jax.tree.leaves(grads)))
+    assert norm > 0.1  # the clip binds
     step = training.make_train_step(cfg, total_steps=10)
     state, _ = step(state, tiny_batch)
     jax.tree.map(np.testing.assert_array_equal, jax.tree.map(np.asarray, state.params), init)  # lr(0) = 0
+    (adam,) = _states(state.opt_state, optax.ScaleByAdamState)
+    jax.tree.map(lambda m, g: np.testing.assert_allclose(m, 0.1 * g * 0.1 / norm, rtol=1e-4, atol=1e-9),
+                 jax.tree.map(np.asarray, adam.mu), grads)
     state, _ = step(state, tiny_batch)
     params, ema = jax.tree.map(np.asarray, state.params), jax.tree.map(np.asarray, state.ema)
     expected = jax.tree.map(lambda p0, p: 0.9 * (0.9 * p0 + 0.1 * p0) + 0.1 * p, init, params)
@@ -74,14 +97,22 @@ def test_init_from_npz_starts_from_those_params(tmp_path):
     jax.tree.map(lambda a, b: np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-7), got, params)
 
 
-def test_nonfinite_update_is_skipped(tiny_batch):
-    cfg = tiny_cfg("unused")
-    state = training.create_train_state(jax.random.PRNGKey(0), cfg)
+def test_nonfinite_update_is_skipped_and_the_schedule_follows_the_step(tiny_batch):
+    cfg = tiny_cfg("unused", lr_schedule="cosine", warmup_steps=3)
+    state = training.create_train_state(jax.random.PRNGKey(0), cfg, total_steps=10)
     before = jax.tree.map(np.asarray, state.params)
     bad = dict(tiny_batch, transform_gt=np.full_like(tiny_batch["transform_gt"], np.nan))
-    state, scalars = training.make_train_step(cfg)(state, bad)
+    step = training.make_train_step(cfg, total_steps=10)
+    state, scalars = step(state, bad)
     assert not bool(scalars["finite"]) and int(state.skipped) == 1 and int(state.nonfinite) == 1
     jax.tree.map(np.testing.assert_array_equal, jax.tree.map(np.asarray, state.params), before)
+    (schedule,) = _states(state.opt_state, optax.ScaleByScheduleState)
+    (adam,) = _states(state.opt_state, optax.ScaleByAdamState)
+    assert int(schedule.count) == int(state.step) == 1  # the learning rate is that of step 1
+    assert int(adam.count) == 0 and all(not np.any(np.asarray(m)) for m in jax.tree.leaves(adam.mu))  # no update
+    state, scalars = step(state, tiny_batch)
+    (schedule,) = _states(state.opt_state, optax.ScaleByScheduleState)
+    assert bool(scalars["finite"]) and int(schedule.count) == int(state.step) == 2 and int(state.nonfinite) == 0
 
 
 def test_resume_matches_uninterrupted_run(tmp_path):
@@ -97,39 +128,163 @@ def test_resume_matches_uninterrupted_run(tmp_path):
     assert params["feat_extractor"]["postpool_6"]["kernel"].shape == (16, 16)
 
 
-def test_corrupt_checkpoint_falls_back(tmp_path, caplog):
-    cfg = tiny_cfg(tmp_path / "run", max_steps=2)
-    training.train_and_evaluate(cfg, progress=False)
-    latest = tmp_path / "run" / "checkpoints" / "latest"
-    steps = sorted(int(p.name) for p in latest.iterdir() if p.name.isdigit())
-    assert steps[-1] == 2 and 1 in steps
-    for item in (latest / "2" / "default").iterdir():  # damage the newest checkpoint
+def _damage(step_dir, how):
+    for item in (step_dir / "default").iterdir():
         if item.is_dir():
             shutil.rmtree(item)
-        else:
+        elif how == "garbage":
             item.write_bytes(b"garbage")
-    ckpt = training.Checkpoints(str(tmp_path / "run"), 3)
-    template = training.create_train_state(jax.random.PRNGKey(0), cfg)
-    restored = ckpt.restore_latest(template)
-    ckpt.close()
-    assert int(restored.step) == 1
-    assert "unreadable" in caplog.text
-    for step in steps:  # nothing readable: a clear error
-        for item in (latest / str(step) / "default").iterdir():
-            if item.is_file():
-                item.write_bytes(b"garbage")
-            else:
-                shutil.rmtree(item)
-    ckpt = training.Checkpoints(str(tmp_path / "run"), 3)
-    with pytest.raises(RuntimeError, match="no readable checkpoint"):
-        ckpt.restore_latest(template)
-    ckpt.close()
+        else:
+            item.unlink()
 
 
-def test_resume_refuses_a_different_config(tmp_path):
-    training.train_and_evaluate(tiny_cfg(tmp_path / "run", max_steps=1), progress=False)
-    with pytest.raises(ValueError, match="different configuration"):
-        training.train_and_evaluate(tiny_cfg(tmp_path / "run", max_steps=2, lr=5e-4), progress=False)
+def _restore(workdir, cfg):
+    ckpt = training.Checkpoints(str(workdir), 3)
+    try:
+        return ckpt.restore_latest(training.create_train_state(jax.random.PRNGKey(0), cfg))
+    finally:
+        ckpt.close()
+
+
+def _save_steps(workdir, cfg, steps, best=None):
+    """Checkpoints of a fresh state at ``steps`` (no training: nothing to compile)."""
+    state = training.create_train_state(jax.random.PRNGKey(0), cfg)
+    ckpt = training.Checkpoints(str(workdir), 3)
+    try:
+        for step in steps:
+            ckpt.save(state._replace(step=np.int32(step)), best_metric=best)
+    finally:
+        ckpt.close()
+
+
+def test_restore_says_what_failed_and_sets_damaged_steps_aside(tmp_path, caplog):
+    cfg = tiny_cfg(tmp_path / "run")
+    _save_steps(tmp_path / "run", cfg, [1, 2, 3])
+    root = tmp_path / "run" / "checkpoints"
+    steps = lambda: sorted(int(p.name) for p in (root / "latest").iterdir() if p.name.isdigit())
+    assert steps() == [1, 2, 3]
+    other = tiny_cfg(tmp_path / "run", model=config_lib.RPMNetConfig(num_neighbors=8, feature_dim=32, num_reg_iters=2))
+    with pytest.raises(training.CheckpointError, match=r"step 3 .* does not fit this run: .*float32\[32"):
+        _restore(tmp_path / "run", other)  # a different network: shapes differ
+    with pytest.raises(training.CheckpointError, match="does not fit this run: it has (no )?opt_state/"):
+        _restore(tmp_path / "run", tiny_cfg(tmp_path / "run", clip_norm=1.0))  # a different optimizer
+    assert steps() == [1, 2, 3]  # a mismatch damages nothing
+    _damage(root / "latest" / "3", "garbage")
+    _damage(root / "latest" / "2", "missing")
+    assert int(_restore(tmp_path / "run", cfg).step) == 1
+    assert "step 3 is damaged" in caplog.text and "step 2 has files missing" in caplog.text
+    assert steps() == [1] and sorted(p.name for p in (root / "damaged").iterdir()) == ["2", "3"]  # for good
+    _damage(root / "latest" / "1", "garbage")
+    with pytest.raises(training.CheckpointError, match="no usable checkpoint.*step 1 is damaged"):
+        _restore(tmp_path / "run", cfg)
+    assert steps() == [] and _restore(tmp_path / "run", cfg) is None  # the next run starts afresh
+
+
+def test_restore_params_reports_missing_and_damaged(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no orbax checkpoint"):
+        (tmp_path / "empty").mkdir()
+        training.restore_params(str(tmp_path / "empty"))
+    _save_steps(tmp_path / "run", tiny_cfg(tmp_path / "run"), [1], best=0.5)
+    best = tmp_path / "run" / "checkpoints" / "best" / "1"
+    _damage(best, "garbage")
+    with pytest.raises(ValueError, match="step 1 in .*best is damaged"):
+        training.restore_params(str(tmp_path / "run"))
+
+
+def test_resume_refuses_a_changed_schedule_or_data_order(tmp_path):
+    from rpmnet_jax.train import config as train_config
+    train_config.check_and_save(tiny_cfg(tmp_path / "const", max_steps=4))
+    train_config.check_and_save(tiny_cfg(tmp_path / "const", max_steps=8, epochs=7))  # a constant lr: extendable
+    cosine = dict(lr_schedule="cosine", warmup_steps=2, max_steps=4)
+    train_config.check_and_save(tiny_cfg(tmp_path / "cos", **cosine))
+    for change, named in ((dict(max_steps=8), "max_steps"), (dict(epochs=7), "epochs"), (dict(batch_size=8), "batch_size"),
+                          (dict(warmup_steps=0), "warmup_steps"), (dict(lr_final=1e-6), "lr_final"),
+                          (dict(lr_schedule="constant"), "lr_schedule"), (dict(lr=5e-4), "lr")):
+        with pytest.raises(training.ConfigMismatchError, match=f"different {named}: {named} ") as e:
+            train_config.check_and_save(tiny_cfg(tmp_path / "cos", **{**cosine, **change}))
+        assert e.value.settings == (named,) and "\n" not in str(e.value)
+    faster = dataclasses.replace(TINY_MODEL, fused_prepool=not TINY_MODEL.fused_prepool)  # speed only: allowed
+    train_config.check_and_save(tiny_cfg(tmp_path / "cos", **cosine, model=faster))
+    train_config.check_and_save(tiny_cfg(tmp_path / "default_bs", batch_size=None))  # partial: 8
+    train_config.check_and_save(tiny_cfg(tmp_path / "default_bs", batch_size=8))
+
+
+def test_cli_names_the_setting_a_resume_may_not_change(tmp_path, capsys):
+    from rpmnet_jax.cli import train as train_cli
+    from rpmnet_jax.train import config as train_config
+    train_config.check_and_save(tiny_cfg(tmp_path / "run", batch_size=4))
+    code = train_cli.main(["--dataset=partial", "--synthetic", "--batch-size", "8", "--workdir", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "batch_size 4 there, 8 now" in err and "--batch-size" in err
+
+
+def test_cli_refuses_a_crafted_init_from_checkpoint(tmp_path, capsys):
+    pytest.importorskip("torch")
+    from conftest import crafted_checkpoint
+    from rpmnet_jax.cli import train as train_cli
+    marker = tmp_path / "ran"
+    evil = crafted_checkpoint(tmp_path / "evil.pth", marker)
+    code = train_cli.main(["--synthetic", "--init-from", evil, "--workdir", str(tmp_path / "run"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("rpmnet-train: error:") and "refused" in err
+    assert len(err.strip().splitlines()) == 1, err
+    assert not marker.exists() and not (tmp_path / "run" / "checkpoints").exists()
+
+
+def _send_once(monkeypatch, owner, name, signum, when=lambda *a: True):
+    """Wraps ``owner.name`` to send ``signum`` to this process the first time ``when(*args)`` holds."""
+    original, sent = getattr(owner, name), []
+
+    def wrapper(*args, **kw):
+        out = original(*args, **kw)
+        if not sent and when(*args):
+            sent.append(True)
+            os.kill(os.getpid(), signum)
+        return out
+
+    monkeypatch.setattr(owner, name, wrapper)
+
+
+def _saved_steps(workdir, which="latest"):
+    folder = workdir / "checkpoints" / which
+    return sorted(int(p.name) for p in folder.iterdir() if p.name.isdigit()) if folder.is_dir() else []
+
+
+def test_sigint_saves_once_and_each_step_is_validated_once(tmp_path, monkeypatch, caplog):
+    """--val-every-steps equal to the epoch (5 steps): step 5 is validated once; Ctrl-C at step 6 saves step 6
+    (once) and returns, with the SIGINT handler restored."""
+    import logging
+    import signal
+    caplog.set_level(logging.INFO, logger="rpmnet_jax")
+    handler = signal.getsignal(signal.SIGINT)
+    cfg = tiny_cfg(tmp_path / "run", max_steps=9, save_every=100, val_every_steps=5)
+    _send_once(monkeypatch, training.loop, "_log_scalars", signal.SIGINT, lambda w, step, sc: step == 6)
+    s = training.train_and_evaluate(cfg, progress=False)
+    assert s["interrupted"] and s["step"] == 6 and len(s["losses"]) == 6
+    validated = [int(r.getMessage().split()[1]) for r in caplog.records if " validation {" in r.getMessage()]
+    assert validated == [5] and _saved_steps(tmp_path / "run") == [5, 6]
+    assert signal.getsignal(signal.SIGINT) is handler
+
+
+def test_sigterm_during_validation_stops_it_and_saves(tmp_path, monkeypatch):
+    import signal
+    from rpmnet_jax import metrics
+    cfg = tiny_cfg(tmp_path / "run", max_steps=6, save_every=100, val_every_steps=2, val_limit=8)  # 2 val batches
+    _send_once(monkeypatch, metrics, "registration_metrics", signal.SIGTERM)
+    s = training.train_and_evaluate(cfg, progress=False)
+    assert s["interrupted"] and s["step"] == 2 and s["validation"] is None
+    assert _saved_steps(tmp_path / "run") == [2] and _saved_steps(tmp_path / "run", "best") == []
+
+
+def test_due_validates_each_step_once():
+    cfg = tiny_cfg("unused", val_every_steps=5, save_every=3, val_every=2)
+    plan = {s: training.loop.due(s, 5, 23, cfg) for s in range(1, 24)}
+    assert [s for s, (v, _) in plan.items() if v] == [5, 10, 15, 20, 23]
+    assert [s for s, (v, save) in plan.items() if save and not v] == [3, 6, 9, 12, 18, 21]
+    cfg = tiny_cfg("unused", val_every_steps=None, save_every=100, val_every=2)
+    assert [s for s in range(1, 24) if training.loop.due(s, 5, 23, cfg)[0]] == [10, 20, 23]
+    assert [s for s in range(1, 24) if training.loop.due(s, 5, 23, cfg)[1]] == [5, 10, 15, 20, 23]
 
 
 _MULTI = r"""

@@ -4,7 +4,9 @@
     python -m experiments.train --dataset=partial --synthetic --max-steps 200
 
 Running the same command again resumes from the last checkpoint in --workdir (exactly: same step,
-optimiser state and data order). SIGTERM saves a checkpoint before exiting.
+optimiser state and data order); settings that define the data, the network or the learning-rate schedule
+(--batch-size; with --lr-schedule cosine also --epochs and --max-steps) cannot change on resume. Ctrl-C
+(SIGINT) or SIGTERM saves a checkpoint at the next step and exits; a second Ctrl-C aborts at once.
 """
 
 import argparse
@@ -100,8 +102,13 @@ def main(argv=None):
     training.initialize_distributed(a.coordinator_address, a.num_processes, a.process_id)
     try:
         summary = training.train_and_evaluate(cfg, progress=progress)
-    except (FileNotFoundError, FloatingPointError, ValueError) as e:
-        hint = "; use another --workdir to start a new run" if isinstance(e, training.ConfigMismatchError) else ""
+    except (FileNotFoundError, FloatingPointError, ValueError, training.CheckpointError) as e:
+        hint = ""
+        if isinstance(e, training.ConfigMismatchError):
+            flags = ", ".join("the model flags" if k == "model" else "--" + k.replace("_", "-") for k in e.settings)
+            hint = f"; resume with the saved {flags}, or use another --workdir to start a new run"
+        elif isinstance(e, training.CheckpointError) and "no usable checkpoint" in str(e):
+            hint = "; run the same command again to start from step 0"
         print(f"rpmnet-train: error: {e}{hint}", file=sys.stderr)
         return 2
     summary.pop("losses")

@@ -10,7 +10,20 @@ from rpmnet_jax import config as config_lib
 
 
 class ConfigMismatchError(ValueError):
-    """The workdir holds a run whose configuration differs from the requested one."""
+    """The workdir holds a run whose configuration differs from the requested one; ``settings`` names the fields."""
+
+    def __init__(self, message: str, settings: tuple[str, ...] = ()):
+        super().__init__(message)
+        self.settings = settings
+
+
+# What a resumed run must keep, and why: the data, the network, the data order and the optimizer's schedule.
+_FIXED = {"dataset": "the data", "data_root": "the data", "synthetic": "the data", "num_points": "the data",
+          "seed": "the data order", "model": "the network", "batch_size": "the data order and the step count",
+          "lr": "the schedule", "lr_schedule": "the schedule", "warmup_steps": "the schedule",
+          "lr_final": "the schedule", "clip_norm": "the optimizer", "ema_decay": "the optimizer"}
+# With the cosine schedule the run's length is its horizon; a constant schedule can be extended or shortened.
+_COSINE_FIXED = {"epochs": "the cosine schedule's length", "max_steps": "the cosine schedule's length"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,9 +58,7 @@ class TrainConfig:
 
     @property
     def resolved_batch_size(self) -> int:
-        if self.batch_size is not None:
-            return self.batch_size
-        return 8 if self.dataset == "partial" else 4
+        return default_batch_size(self.dataset) if self.batch_size is None else self.batch_size
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -55,20 +66,40 @@ class TrainConfig:
         return d
 
 
+def default_batch_size(dataset: str) -> int:
+    """The official batch size: 8 for partial, 4 for clean/noisy."""
+    return 8 if dataset == "partial" else 4
+
+
+def _comparable(d: dict, key: str):
+    if key == "model":  # fused_prepool changes speed only
+        return {k: v for k, v in (d.get("model") or {}).items() if k != "fused_prepool"}
+    if key == "batch_size":
+        return d.get("batch_size") or default_batch_size(d.get("dataset", "noisy"))
+    return d.get(key)
+
+
+def resume_conflicts(saved: dict, current: dict) -> dict:
+    """``{setting: (saved, requested, why it must stay)}`` for each setting a resume may not change."""
+    fixed = dict(_FIXED, **(_COSINE_FIXED if current.get("lr_schedule") == "cosine" else {}))
+    return {k: (_comparable(saved, k), _comparable(current, k), why) for k, why in fixed.items()
+            if _comparable(saved, k) != _comparable(current, k)}
+
+
 def check_and_save(cfg: TrainConfig) -> None:
+    """Refuses (:class:`ConfigMismatchError`) to resume a run in ``cfg.workdir`` with settings that define its
+    data, network or schedule changed; then writes ``config.json``."""
     path = os.path.join(cfg.workdir, "config.json")
-    current = cfg.to_dict()
+    current = json.loads(json.dumps(cfg.to_dict()))  # as it reads back (tuples as lists)
     if os.path.isfile(path):
         with open(path) as f:
             saved = json.load(f)
-        keys = ("dataset", "num_points", "lr", "seed", "model", "synthetic", "data_root", "lr_schedule",
-                "warmup_steps", "lr_final", "clip_norm", "ema_decay")
-        speed_only = lambda m: {k: v for k, v in (m or {}).items() if k != "fused_prepool"}
-        diff = {k: (saved.get(k), current.get(k)) for k in keys
-                if (speed_only(saved.get(k)) if k == "model" else saved.get(k))
-                != (speed_only(current.get(k)) if k == "model" else current.get(k))}
-        if diff:
-            raise ConfigMismatchError(f"{cfg.workdir} holds a run with a different configuration {diff}")
+        conflicts = resume_conflicts(saved, current)
+        if conflicts:
+            what = "; ".join(f"{k} {a!r} there, {b!r} now (it sets {why})" if k != "model" else
+                             f"model {_model_diff(a, b)} (it sets {why})" for k, (a, b, why) in conflicts.items())
+            raise ConfigMismatchError(f"{cfg.workdir} holds a run with a different {', '.join(conflicts)}: {what}",
+                                      tuple(conflicts))
     os.makedirs(cfg.workdir, exist_ok=True)
     import jax
     if jax.process_index() != 0:  # one writer in a multi-process run
@@ -77,3 +108,8 @@ def check_and_save(cfg: TrainConfig) -> None:
     with open(tmp, "w") as f:
         json.dump(current, f, indent=2)
     os.replace(tmp, path)
+
+
+def _model_diff(saved: dict, current: dict) -> str:
+    return ", ".join(f"{k} {saved.get(k)!r} there, {current.get(k)!r} now" for k in sorted(set(saved) | set(current))
+                     if saved.get(k) != current.get(k))

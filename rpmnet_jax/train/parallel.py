@@ -36,6 +36,13 @@ class Parallel:
             out[k] = jax.make_array_from_process_local_data(self.batch, local, x.shape)
         return out
 
+    def any(self, flag: bool) -> bool:
+        """Whether ``flag`` is set on any process (a collective: every process calls it at the same point)."""
+        if self.processes == 1:
+            return bool(flag)
+        from jax.experimental import multihost_utils
+        return bool(np.any(multihost_utils.process_allgather(np.int32(bool(flag)))))
+
     def put_state(self, state):
         """A host pytree (identical on every process) → arrays replicated on every device."""
         return jax.tree.map(lambda x: jax.make_array_from_process_local_data(self.replicated, np.asarray(x)), state)

@@ -46,6 +46,16 @@ def create_train_state(key, cfg: TrainConfig, total_steps: int = 0, params=None)
     return TrainState(zero(), params, make_optimizer(cfg, total_steps).init(params), zero(), zero(), ema)
 
 
+def _is_schedule(x) -> bool:
+    return isinstance(x, optax.ScaleByScheduleState)
+
+
+def _advance_schedule(kept, updated):
+    """``kept`` (the optimizer state of a skipped update) with the schedule's count of ``updated``: the learning
+    rate follows ``state.step`` whether or not an update was applied."""
+    return jax.tree.map(lambda k, u: u if _is_schedule(u) else k, kept, updated, is_leaf=_is_schedule)
+
+
 def make_train_step(cfg: TrainConfig, total_steps: int = 0):
     """``train_step(state, batch) -> (state, scalars)``; skips (and counts) non-finite updates."""
     optimizer = make_optimizer(cfg, total_steps)
@@ -66,7 +76,7 @@ def make_train_step(cfg: TrainConfig, total_steps: int = 0):
         keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(finite, a, b), new, old)
         params = keep(params, state.params)
         ema = params if decay is None else jax.tree.map(lambda e, p: decay * e + (1.0 - decay) * p, state.ema, params)
-        new_state = TrainState(state.step + 1, params, keep(opt_state, state.opt_state),
+        new_state = TrainState(state.step + 1, params, _advance_schedule(keep(opt_state, state.opt_state), opt_state),
                                jnp.where(finite, 0, state.nonfinite + 1), state.skipped + (~finite).astype(jnp.int32),
                                ema)
         scalars = {"loss": loss, "mae": terms["mae"], "inlier": terms["inlier"], "alpha": alpha, "beta": beta,

@@ -60,7 +60,15 @@ def restore_params(path: str) -> dict:
             step = mngr.best_step() if folder.endswith("best") else mngr.latest_step()
             step = step if step is not None else mngr.latest_step()
             if step is not None:
-                restored = mngr.restore(step, args=ocp.args.StandardRestore())
+                try:
+                    restored = mngr.restore(step, args=ocp.args.StandardRestore())
+                except Exception as e:  # noqa: BLE001 - reported as what it is
+                    what = "has files missing" if isinstance(e, FileNotFoundError) else "is damaged"
+                    raise ValueError(f"checkpoint at step {step} in {folder} {what} ({type(e).__name__}: "
+                                     f"{str(e).splitlines()[0][:300] if str(e) else ''})") from None
+                if not isinstance(restored, dict) or "params" not in restored:
+                    raise ValueError(f"checkpoint at step {step} in {folder} holds no 'params': not a training "
+                                     "checkpoint of rpmnet_jax")
                 return restored.get("ema", restored["params"])  # the EMA is what validation chose
         finally:
             mngr.close()
