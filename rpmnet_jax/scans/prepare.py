@@ -18,7 +18,9 @@ from rpmnet_jax.scans import normals as normals_lib
 from rpmnet_jax.ops import se3
 
 
-def _clean(name: str, points, normals):
+def clean_cloud(name: str, points, normals):
+    """``points (N, 3)`` float64 without NaN/inf rows (warned), and unit ``normals`` (or ``None``); raises
+    ``ValueError`` naming ``name`` for a wrong shape, fewer than 3 points, a degenerate cloud or zero normals."""
     points = np.asarray(points, np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"{name}: expected points of shape (N, 3), got {points.shape}")
@@ -46,6 +48,31 @@ def _clean(name: str, points, normals):
                              "fix them or re-estimate normals")
         normals = normals / length[:, None]
     return points, normals
+
+
+def voxel_downsample(points: np.ndarray, normals: np.ndarray | None, voxel_size: float
+                     ) -> tuple[np.ndarray, np.ndarray | None]:
+    """One point per occupied cube of side ``voxel_size``: the mean of its points ``(V, 3)`` and, when
+    ``normals (N, 3)`` are given, their renormalised mean (the first normal of the cube where they cancel)."""
+    if not voxel_size > 0:
+        raise ValueError(f"voxel_size must be > 0, got {voxel_size}")
+    points = np.asarray(points, np.float64)
+    keys = np.floor((points - points.min(axis=0)) / voxel_size).astype(np.int64)
+    _, first, inverse, counts = np.unique(keys, axis=0, return_index=True, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+
+    def summed(x):
+        return np.stack([np.bincount(inverse, x[:, k], len(counts)) for k in range(3)], axis=1)
+
+    out = summed(points) / counts[:, None]
+    if normals is None:
+        return out, None
+    total = summed(np.asarray(normals, np.float64))
+    length = np.linalg.norm(total, axis=1, keepdims=True)
+    fallback = np.asarray(normals, np.float64)[first]
+    fallback = fallback / np.maximum(np.linalg.norm(fallback, axis=1, keepdims=True), 1e-300)
+    out_normals = np.where(length > 1e-6 * counts[:, None], total / np.maximum(length, 1e-300), fallback)
+    return out, out_normals
 
 
 def _downsample(rng: np.random.Generator, n_total: int, n: int, method: str) -> np.ndarray:
@@ -106,8 +133,8 @@ def prepare_pair(src_points, ref_points, src_normals=None, ref_normals=None, *, 
         raise ValueError(f"sampling must be 'random' or 'fps', got {sampling!r}")
     if centering not in ("separate", "common"):
         raise ValueError(f"centering must be 'separate' or 'common', got {centering!r}")
-    src, src_n = _clean("source", src_points, None if reestimate_normals else src_normals)
-    ref, ref_n = _clean("reference", ref_points, None if reestimate_normals else ref_normals)
+    src, src_n = clean_cloud("source", src_points, None if reestimate_normals else src_normals)
+    ref, ref_n = clean_cloud("reference", ref_points, None if reestimate_normals else ref_normals)
     if centering == "separate":
         c_src, c_ref = src.mean(axis=0), ref.mean(axis=0)
     else:

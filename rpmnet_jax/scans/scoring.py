@@ -1,4 +1,5 @@
-"""Scoring a rigid transform the way Open3D's ``evaluate_registration`` does (host-side NumPy/SciPy)."""
+"""Scoring a rigid transform the way Open3D's ``evaluate_registration`` does, and its point-to-plane information
+matrix (host-side NumPy/SciPy)."""
 
 from __future__ import annotations
 
@@ -42,3 +43,33 @@ def evaluate_registration(src, ref, transform, max_distance: float, ref_tree: cK
     rmse = float(np.sqrt(np.mean(dist[inlier] ** 2))) if n else 0.0
     corr = np.stack([np.nonzero(inlier)[0], idx[inlier]], axis=1).astype(np.int64)
     return Score(n / len(src), rmse, corr, dist[inlier])
+
+
+class PlaneFit(NamedTuple):
+    information: np.ndarray  # (6, 6) on ξ = (ω, v) of transform · Exp(ξ)
+    residuals: np.ndarray  # (n,) signed point-to-plane distance of each pair
+
+
+def plane_fit(src, ref, ref_normals, transform, correspondences) -> PlaneFit:
+    """Point-to-plane residuals and information matrix of ``transform (4, 4)`` moving ``src (N, 3)`` onto
+    ``ref (M, 3)`` (unit ``ref_normals (M, 3)``) over ``correspondences (n, 2)`` (e.g. a :class:`Score`'s).
+
+    The information is ``Σ_k J_kᵀ J_k / σ²`` with rows ``J_k = [p_k × m_k, m_k]``: ``p_k`` a source point,
+    ``m_k = Rᵀ n_k`` its partner's normal in the source frame, so it is the information of the right
+    perturbation ``transform · Exp(ξ)``, ``ξ = (ω, v)`` (rotation first, as GTSAM's ``Pose3``; Open3D's
+    ``get_information_matrix_from_point_clouds`` is the point-to-point analogue); ``σ²`` the mean squared
+    residual (floored at 1e-12 of the clouds' squared extent). All zeros without pairs.
+    """
+    src, ref = _as_points("source", src), _as_points("reference", ref)
+    t = np.asarray(transform, np.float64)
+    corr = np.asarray(correspondences, np.int64).reshape(-1, 2)
+    if len(corr) == 0:
+        return PlaneFit(np.zeros((6, 6)), np.zeros(0))
+    p = src[corr[:, 0]]
+    n = np.asarray(ref_normals, np.float64)[corr[:, 1]]
+    residuals = np.sum((p @ t[:3, :3].T + t[:3, 3] - ref[corr[:, 1]]) * n, axis=1)
+    m = n @ t[:3, :3]  # R^T n, row by row
+    jac = np.concatenate([np.cross(p, m), m], axis=1)
+    extent = float(np.ptp(ref, axis=0).max()) or 1.0
+    sigma_sq = max(float(np.mean(residuals ** 2)), 1e-12 * extent ** 2)
+    return PlaneFit(jac.T @ jac / sigma_sq, residuals)
