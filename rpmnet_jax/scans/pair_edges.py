@@ -1,0 +1,107 @@
+"""Pairwise edges between scans for :func:`rpmnet_jax.align_scans`: the network over many pairs in batched
+calls, ICP from a start, and the measured quality of each answer.
+
+An edge ``(i, j)`` maps the source scan ``i`` onto the target scan ``j`` (caller's units); its information
+matrix is on the tangent of the right perturbation (:func:`rpmnet_jax.scans.scoring.plane_fit`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from rpmnet_jax import registration
+from rpmnet_jax.scans import prepare, refine as refine_lib, scoring
+
+
+class Scan(NamedTuple):
+    """A scan ready for pairing: voxel-downsampled points, unit normals and their k-d tree."""
+
+    points: np.ndarray  # (V, 3) caller's units
+    normals: np.ndarray  # (V, 3)
+    tree: cKDTree
+    radius: float  # largest distance of a point from the centroid
+
+
+class Edge(NamedTuple):
+    source: int
+    target: int
+    transform: np.ndarray  # (4, 4): maps the source scan's points into the target scan's frame
+    fitness: float  # fraction of the (downsampled) source within max_correspondence_distance of the target
+    inlier_rmse: float  # RMS distance of those pairs, caller's units
+    information: np.ndarray  # (6, 6) on ξ = (ω, v) of transform · Exp(ξ)
+    plane_residual: float  # median |point-to-plane distance| of those pairs: small where the surfaces coincide
+    stage: str  # "network" (batched network + ICP), "global" (placed against the merged model), "refine" (ICP)
+
+
+def make_scan(points: np.ndarray, normals: np.ndarray) -> Scan:
+    points = np.asarray(points, np.float64)
+    return Scan(points, np.asarray(normals, np.float64), cKDTree(points),
+                float(np.max(np.linalg.norm(points - points.mean(axis=0), axis=1))))
+
+
+def measure(scans, i: int, j: int, transform: np.ndarray, max_distance: float, stage: str,
+            plane_distance: float | None = None) -> Edge:
+    """The edge ``i → j`` at ``transform``, scored on all of scan ``i``: fitness and RMSE within
+    ``max_distance``, point-to-plane residual and information from the pairs within ``plane_distance``
+    (default ``max_distance``)."""
+    src, ref = scans[i], scans[j]
+    score = scoring.evaluate_registration(src.points, ref.points, transform, max_distance, ref_tree=ref.tree)
+    close = score.correspondences[score.distances <= (plane_distance or max_distance)]
+    fit = scoring.plane_fit(src.points, ref.points, ref.normals, transform, close)
+    residual = float(np.median(np.abs(fit.residuals))) if len(fit.residuals) else float("inf")
+    return Edge(int(i), int(j), np.asarray(transform, np.float64), score.fitness, score.inlier_rmse, fit.information,
+                residual, stage)
+
+
+def icp_edge(scans, i: int, j: int, start: np.ndarray, max_distance: float, rng: np.random.Generator, *,
+             num_points: int, scales=(4.0, 2.0, 1.0), max_iterations: int = 30, stage: str = "refine") -> Edge:
+    """Point-to-plane ICP of up to ``num_points`` random points of scan ``i`` onto scan ``j`` from
+    ``start (4, 4)`` (gates ``scales × max_distance``), measured on all of scan ``i`` (the plane fit within
+    the finest gate)."""
+    src, ref = scans[i], scans[j]
+    pick = rng.choice(len(src.points), num_points, replace=False) if len(src.points) > num_points else slice(None)
+    r = refine_lib.point_to_plane_icp(src.points[pick], ref.points, ref.normals, start, max_distance, scales=scales,
+                                      max_iterations=max_iterations, ref_tree=ref.tree)
+    return measure(scans, i, j, r.transform, max_distance, stage, min(1.0, min(scales)) * max_distance)
+
+
+def network_starts(params, scans, pairs, *, cfg, num_points: int, num_iters: int, batch_size: int, seed: int
+                   ) -> np.ndarray:
+    """``(P, 4, 4)`` network answers (caller's units) for ``pairs (P, 2)``, each started from the identity
+    after :func:`rpmnet_jax.scans.prepare.prepare_pair` (as :func:`rpmnet_jax.align` prepares a pair); pairs
+    of equal sample sizes share batched calls of ``batch_size`` (the last one padded), one compile per size."""
+    prepared = [prepare.prepare_pair(scans[i].points, scans[j].points, scans[i].normals, scans[j].normals,
+                                     num_points=num_points, seed=seed) for i, j in pairs]
+    out = np.zeros((len(pairs), 4, 4))
+    fn = registration.jitted(cfg, int(num_iters), "transforms")
+    groups = {}
+    for p, pair in enumerate(prepared):
+        groups.setdefault((pair.src6.shape[1], pair.ref6.shape[1]), []).append(p)
+    for members in groups.values():
+        size = min(batch_size, 1 << (len(members) - 1).bit_length())  # a power of two up to batch_size
+        for start in range(0, len(members), size):
+            chunk = members[start:start + size]
+            padded = chunk + [chunk[-1]] * (size - len(chunk))
+            src = np.concatenate([prepared[p].src6 for p in padded])
+            ref = np.concatenate([prepared[p].ref6 for p in padded])
+            transforms = np.asarray(fn(params, src, ref)[-1], np.float64)  # (size, 3, 4), normalised frames
+            for k, p in enumerate(chunk):
+                out[p] = prepared[p].to_callers_units(transforms[k])
+    return out
+
+
+def predicted_overlap(scans, i: int, j: int, transform: np.ndarray, max_distance: float,
+                      num_points: int = 300) -> float:
+    """Share of an evenly strided sample of scan ``i`` within ``max_distance`` of scan ``j`` under
+    ``transform``, or of scan ``j`` near scan ``i``, whichever is larger (one scan may cover a small part of
+    the other)."""
+
+    def share(a, b, t):
+        pts = scans[a].points[:: max(1, len(scans[a].points) // num_points)]
+        dist, _ = scans[b].tree.query(pts @ t[:3, :3].T + t[:3, 3], distance_upper_bound=max_distance)
+        return float(np.mean(np.isfinite(dist)))
+
+    return max(share(i, j, transform), share(j, i, np.linalg.inv(transform)))
