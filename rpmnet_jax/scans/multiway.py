@@ -50,7 +50,7 @@ class ScanAlignment(NamedTuple):
     poses: np.ndarray  # (S, 4, 4): scan → the first placed scan's frame (scan 0 unless left out); NaN if left out
     edges: tuple  # Edge of the final pose graph (kept by the robust optimisation)
     rejected: tuple  # Edge the robust optimisation rejected: among the network edges and the final ones
-    left_out: tuple  # indices of scans that overlap nothing (poses NaN)
+    left_out: tuple  # indices of scans that overlap none of the placed ones (poses NaN)
     voxel_size: float  # caller's units
     max_correspondence_distance: float  # caller's units
     timings: dict  # seconds: prepare, network (with the candidates' short ICP), graph, global, refine, total
@@ -240,7 +240,7 @@ def align_scans(clouds, normals=None, *, params=None, checkpoint=None, voxel_siz
     timings["refine"] = time.perf_counter() - t
 
     if pending:
-        warnings.warn(f"scans {pending} overlap no other scan (no registration onto the placed scans reached "
+        warnings.warn(f"scans {pending} overlap none of the placed scans (no registration onto them reached "
                       f"fitness {min_fitness} with coinciding surfaces); left out", LeftOutWarning, stacklevel=2)
     left_out = tuple(s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0]))
     first = min(s for s in range(num_scans) if s not in left_out)
