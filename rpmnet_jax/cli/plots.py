@@ -82,3 +82,26 @@ def plot_validation_curve(path: str, steps, values, label: str = "validation mea
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_scans(path: str, panels: dict, names, max_points: int = 2500) -> None:
+    """Headless 3-D scatter of scans in a common frame, one colour per scan: ``panels`` maps a title to a list
+    of ``(N_i, 3)`` clouds (``None`` for a scan left out), one panel each, side by side."""
+    plt = _pyplot()
+    rng = np.random.default_rng(0)
+    colours = plt.get_cmap("tab10" if len(names) <= 10 else "tab20")
+    fig = plt.figure(figsize=(5.5 * len(panels), 5.5))
+    for k, (title, clouds) in enumerate(panels.items()):
+        ax = fig.add_subplot(1, len(panels), k + 1, projection="3d")
+        for i, (name, pts) in enumerate(zip(names, clouds)):
+            if pts is None:
+                continue
+            s = pts[rng.choice(len(pts), min(len(pts), max_points), replace=False)]
+            ax.scatter(s[:, 0], s[:, 1], s[:, 2], s=0.5, color=colours(i % colours.N), label=name)
+        ax.text2D(0.5, 0.97, title, transform=ax.transAxes, ha="center", va="top")
+        ax.set_axis_off()
+        ax.view_init(elev=15, azim=20, vertical_axis="y")  # y up, as in camera frames and the Stanford scans
+    fig.axes[0].legend(loc="upper left", markerscale=10, fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

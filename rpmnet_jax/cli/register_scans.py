@@ -1,0 +1,143 @@
+"""``rpmnet-register-scans SCAN1 SCAN2 ... | FOLDER --out-poses poses.conf``: register many scans into the frame
+of the first one (:func:`rpmnet_jax.align_scans`) and write their poses as a Stanford ``.conf``.
+
+A folder stands for its point-cloud files (sorted by name). ``poses.conf`` has one line
+``bmesh NAME tx ty tz qx qy qz qw`` per placed scan (NAME its file name; world point = ``p @ R + t`` for a row
+vector ``p`` with ``R`` the quaternion's matrix, as the Stanford ``bun.conf``); the first placed scan is the
+identity. A scan that overlaps none of the placed scans is reported and left out of the outputs.
+
+Exit codes: 0 success, 2 bad input or arguments (one-line message, nothing written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import warnings
+
+PROG = "rpmnet-register-scans"
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scans", nargs="+", help="scan files (.ply .pcd .xyz .txt .csv .npy .npz) or folders of them")
+    p.add_argument("--out-poses", required=True, help="write the poses as a Stanford .conf")
+    p.add_argument("--out-merged", default=None,
+                   help="write all placed scans in the common frame as one cloud (float64; format from the extension)")
+    p.add_argument("--merged-voxel", type=float, default=None,
+                   help="voxel-downsample the merged cloud to this size (scans' units; default: every point)")
+    p.add_argument("--plot", default=None, help="PNG of the merged scans, one colour per scan")
+    p.add_argument("--checkpoint", default=None,
+                   help="orbax training dir, .npz or official .pth (default: the shipped model)")
+    p.add_argument("--voxel-size", type=float, default=None,
+                   help="registration voxel size in the scans' units (default: 2%% of the median scan radius)")
+    p.add_argument("--max-correspondence-distance", type=float, default=None,
+                   help="inlier threshold in the scans' units (default: 5%% of the median scan radius)")
+    p.add_argument("--refine", choices=("icp", "none"), default="icp",
+                   help="final ICP rounds over every overlapping pair (default), or none")
+    p.add_argument("--seed", type=int, default=0, help="seed of the samplings")
+    return p
+
+
+def _scan_paths(args) -> list:
+    from rpmnet_jax.scans import cloud_io
+
+    paths = []
+    for arg in args:
+        if os.path.isdir(arg):
+            found = sorted(os.path.join(arg, f) for f in os.listdir(arg)
+                           if os.path.splitext(f)[1].lower() in cloud_io.FORMATS)
+            if not found:
+                raise ValueError(f"{arg}: no point-cloud files ({', '.join(cloud_io.FORMATS)}) in this folder")
+            paths += found
+        else:
+            paths.append(arg)
+    if len(paths) < 2:
+        raise ValueError(f"need at least two scans, got {len(paths)}")
+    names = [os.path.basename(p) for p in paths]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise ValueError(f"duplicate scan names {repeated}: the .conf names scans by file name; rename them")
+    return paths
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    import numpy as np
+
+    from rpmnet_jax.evaluation import scan_poses
+    from rpmnet_jax.ops import se3
+    from rpmnet_jax.scans import cloud_io, multiway, prepare
+    from rpmnet_jax.weights import loading
+
+    t0 = time.perf_counter()
+    try:
+        for out in (args.out_poses, args.out_merged, args.plot):
+            if out and not os.path.isdir(os.path.dirname(os.path.abspath(out))):
+                raise ValueError(f"output folder of {out} does not exist")
+        if args.out_merged:
+            cloud_io._ext(args.out_merged)
+        if args.merged_voxel is not None and not args.merged_voxel > 0:
+            raise ValueError(f"--merged-voxel must be > 0, got {args.merged_voxel}")
+        paths = _scan_paths(args.scans)
+        clouds = [cloud_io.read_cloud(p) for p in paths]
+        if args.checkpoint is None and not loading.has_default():
+            raise ValueError("no shipped model in this install; pass --checkpoint")
+        t_read = time.perf_counter() - t0
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = multiway.align_scans([c for c, _ in clouds], [n for _, n in clouds], checkpoint=args.checkpoint,
+                                          voxel_size=args.voxel_size, refine=args.refine, seed=args.seed,
+                                          max_correspondence_distance=args.max_correspondence_distance)
+    except (ValueError, OSError) as e:  # bad input, or a file that is missing, a folder, or unreadable
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    names = [os.path.basename(p) for p in paths]
+    for w in caught:
+        if not issubclass(w.category, multiway.LeftOutWarning):  # said below, by name
+            print(f"{PROG}: warning: {w.message}", file=sys.stderr)
+    placed = [s for s in range(len(paths)) if s not in result.left_out]
+    for s in result.left_out:
+        print(f"{PROG}: warning: {names[s]} overlaps none of the placed scans; left out of the outputs",
+              file=sys.stderr)
+    print(f"{'scan':<24} {'rotation deg':>12} {'translation':>12} {'edges':>5}")
+    for s in placed:
+        degree = sum(s in (e.source, e.target) for e in result.edges)
+        print(f"{names[s]:<24} {float(se3.rotation_angle_deg(result.poses[s, :3, :3])):>12.2f} "
+              f"{float(np.linalg.norm(result.poses[s, :3, 3])):>12.6g} {degree:>5}")
+    for e in result.rejected:
+        print(f"rejected edge {names[e.source]} -> {names[e.target]} ({e.stage}, fitness {e.fitness:.2f})")
+    stages = "  ".join(f"{k} {v:.2f}" for k, v in result.timings.items() if k != "total")
+    print(f"{len(result.edges)} edges, {len(result.rejected)} rejected; voxel {result.voxel_size:.4g}, "
+          f"max_correspondence_distance {result.max_correspondence_distance:.4g}; time {time.perf_counter() - t0:.2f} s "
+          f"(read {t_read:.2f}  {stages})")
+
+    scan_poses.write_poses(args.out_poses, [names[s] for s in placed], result.poses[placed])
+    finite = {s: np.all(np.isfinite(clouds[s][0]), axis=1) for s in placed}  # rows align_scans dropped too
+    moved = {s: clouds[s][0][finite[s]] @ result.poses[s, :3, :3].T + result.poses[s, :3, 3] for s in placed}
+    if args.out_merged:
+        points = np.concatenate([moved[s] for s in placed])
+        normals = None
+        if all(clouds[s][1] is not None for s in placed):
+            normals = np.concatenate([clouds[s][1][finite[s]] @ result.poses[s, :3, :3].T for s in placed])
+            if not np.all(np.isfinite(normals)):
+                normals = None
+        if args.merged_voxel:
+            points, normals = prepare.voxel_downsample(points, normals, args.merged_voxel)
+        cloud_io.write_cloud(args.out_merged, points, normals)
+    if args.plot:
+        from rpmnet_jax.cli import plots
+        plots.plot_scans(args.plot, {"registered scans": [moved.get(s) for s in range(len(paths))]}, names)
+    return 0
+
+
+def entry() -> None:
+    """Console script ``rpmnet-register-scans``."""
+    from rpmnet_jax.cli import runtime
+    runtime.run(main)
+
+
+if __name__ == "__main__":
+    entry()
