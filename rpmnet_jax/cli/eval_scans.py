@@ -8,6 +8,13 @@ PCA normals); every method registers the prepared pair and its answer is mapped 
 truth is ``T_B^-1 T_A`` with ``T_X = [[R_X^T, t_X], [0, 1]]`` from the ``bmesh`` lines. Prints a table and
 writes ``--output`` (JSON with per-pair errors). The pipeline methods (``rpmnet_icp``, ``rpmnet_auto``,
 ``rpmnet_global``) run :func:`rpmnet_jax.align` on the full scans, exactly as ``rpmnet-register`` does.
+
+    python -m experiments.eval_scans --scans PATH/stanford_bunny --multiway [--plot merged.png]
+
+``--multiway`` registers all scans of the ``.conf`` (in its order) into the first one's frame with
+:func:`rpmnet_jax.align_scans` and with Open3D's multiway recipe (:func:`rpmnet_jax.evaluation.baselines.open3d_multiway`)
+in the same run, and prints per scan the rotation error (°) of its pose relative to the first scan and the
+RMS displacement (mm, for scans in metres) of its points from their true place, and each method's time.
 """
 
 from __future__ import annotations
@@ -37,7 +44,17 @@ def main(argv=None) -> int:
     p.add_argument("--iters", type=int, default=5)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--output", default=None, help="write the per-pair results as JSON")
+    p.add_argument("--multiway", action="store_true", help="register all scans together (see above)")
+    p.add_argument("--multiway-methods", default="rpmnet_multiway,open3d_multiway",
+                   help="with --multiway: rpmnet_multiway (align_scans), open3d_multiway (Open3D's recipe)")
+    p.add_argument("--baseline-voxel", type=float, default=0.002,
+                   help="with --multiway: voxel size of Open3D's recipe in the scans' units (default 0.002: 2 mm)")
+    p.add_argument("--repeat", type=int, default=1, help="with --multiway: runs of each method (times of each kept)")
+    p.add_argument("--plot", default=None, help="with --multiway: PNG of the merged scans of each method, by scan")
     a = p.parse_args(argv)
+    if a.multiway:
+        from rpmnet_jax.cli import eval_multiway
+        return eval_multiway.run(a)
 
     from rpmnet_jax import metrics
     from rpmnet_jax.evaluation import protocol, scan_poses

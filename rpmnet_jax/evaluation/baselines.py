@@ -89,3 +89,50 @@ def fgr(src, ref, radius: float = 0.3, max_nn: int = 128, max_correspondence: fl
             ps, pr, fs, fr, reg.FastGlobalRegistrationOption(maximum_correspondence_distance=max_correspondence))
         out.append(np.asarray(res.transformation)[:3])
     return np.stack(out).astype(np.float32)
+
+
+def open3d_multiway(clouds, voxel_size: float, seed: int = 0) -> np.ndarray:
+    """Open3D's multiway registration recipe (its tutorial, with a global start for every pair).
+
+    Each scan ``clouds[i] (N_i, 3)`` is voxel-downsampled, gets normals (radius ``2 × voxel``) and FPFH
+    features (radius ``5 × voxel``); every pair is registered by RANSAC on feature matches (distance
+    ``1.5 × voxel``, edge-length and distance checkers, 100k iterations, confidence 0.999) and point-to-plane ICP
+    (coarse ``15 × voxel``, fine ``1.5 × voxel``); neighbours in the given order are odometry edges, all other
+    pairs uncertain loop closures; Levenberg–Marquardt with edge pruning at 0.25. Returns the poses
+    ``(S, 4, 4)`` mapping each scan into the first scan's frame.
+    """
+    import open3d as o3d
+    reg = o3d.pipelines.registration
+    o3d.utility.random.seed(seed)
+    downs, feats = [], []
+    for points in clouds:
+        pc = _o3d_cloud(np.asarray(points, np.float64)).voxel_down_sample(voxel_size)
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel_size, max_nn=30))
+        feats.append(reg.compute_fpfh_feature(pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel_size,
+                                                                                          max_nn=100)))
+        downs.append(pc)
+    coarse, fine = 15 * voxel_size, 1.5 * voxel_size
+    graph = reg.PoseGraph()
+    odometry = np.eye(4)
+    graph.nodes.append(reg.PoseGraphNode(odometry))
+    for i in range(len(downs)):
+        for j in range(i + 1, len(downs)):
+            ransac = reg.registration_ransac_based_on_feature_matching(
+                downs[i], downs[j], feats[i], feats[j], True, fine, reg.TransformationEstimationPointToPoint(False), 3,
+                [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(fine)],
+                reg.RANSACConvergenceCriteria(100000, 0.999))
+            icp_coarse = reg.registration_icp(downs[i], downs[j], coarse, ransac.transformation,
+                                              reg.TransformationEstimationPointToPlane())
+            icp_fine = reg.registration_icp(downs[i], downs[j], fine, icp_coarse.transformation,
+                                            reg.TransformationEstimationPointToPlane())
+            t = icp_fine.transformation
+            info = reg.get_information_matrix_from_point_clouds(downs[i], downs[j], fine, t)
+            if j == i + 1:
+                odometry = t @ odometry
+                graph.nodes.append(reg.PoseGraphNode(np.linalg.inv(odometry)))
+            graph.edges.append(reg.PoseGraphEdge(i, j, t, info, uncertain=j != i + 1))
+    reg.global_optimization(graph, reg.GlobalOptimizationLevenbergMarquardt(),
+                            reg.GlobalOptimizationConvergenceCriteria(),
+                            reg.GlobalOptimizationOption(max_correspondence_distance=fine, edge_prune_threshold=0.25,
+                                                         reference_node=0))
+    return np.stack([np.asarray(node.pose) for node in graph.nodes])
