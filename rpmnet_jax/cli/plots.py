@@ -92,7 +92,7 @@ def plot_scans(path: str, panels: dict, names, max_points: int = 2500) -> None:
     colours = plt.get_cmap("tab10" if len(names) <= 10 else "tab20")
     fig = plt.figure(figsize=(5.5 * len(panels), 5.5))
     for k, (title, clouds) in enumerate(panels.items()):
-        ax = fig.add_subplot(1, len(panels), k + 1, projection="3d")
+        ax = fig.add_subplot(1, len(panels), k + 1, projection="3d", computed_zorder=False)  # scan order
         for i, (name, pts) in enumerate(zip(names, clouds)):
             if pts is None:
                 continue
