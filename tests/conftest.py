@@ -15,10 +15,19 @@ FIXTURES = pathlib.Path(os.environ.get("RPMNET_FIXTURES",
 DATA = FIXTURES.parent / "data"
 
 
+def require(path, what: str) -> pathlib.Path:
+    """``path`` if it exists; else the test skips, or fails when ``CI=true`` (CI must never pass without it)."""
+    path = pathlib.Path(path)
+    if not path.exists():
+        message = f"{what} not found at {path}"
+        if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+            pytest.fail(f"{message} (CI=true: the test data must be there)")
+        pytest.skip(message)
+    return path
+
+
 def require_fixtures():
-    if not FIXTURES.is_dir():
-        pytest.skip(f"parity fixtures not found at {FIXTURES} (set RPMNET_FIXTURES to the shared/fixtures folder)")
-    return FIXTURES
+    return require(FIXTURES, "parity fixtures (set RPMNET_FIXTURES to the shared/fixtures folder)")
 
 
 @contextlib.contextmanager

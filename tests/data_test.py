@@ -11,7 +11,7 @@ from rpmnet_jax import data
 from rpmnet_jax.data import loader
 from rpmnet_jax.data import synthetic
 
-from conftest import require_fixtures
+from conftest import require, require_fixtures
 
 KEYS = ("points_src", "points_ref", "transform_gt", "points_raw")
 
@@ -202,3 +202,13 @@ def test_errors(tmp_path, synthetic_root):
     ds = data.ModelNet40(synthetic_root, "test", "clean")
     with pytest.raises(IndexError):
         ds[len(ds)]
+
+
+def test_missing_test_data_fails_under_ci_and_skips_elsewhere(monkeypatch, tmp_path):
+    monkeypatch.setenv("CI", "true")
+    with pytest.raises(pytest.fail.Exception, match="CI=true"):
+        require(tmp_path / "nowhere", "test data")
+    monkeypatch.setenv("CI", "")
+    with pytest.raises(pytest.skip.Exception):
+        require(tmp_path / "nowhere", "test data")
+    assert require(tmp_path, "test data") == tmp_path

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from conftest import DATA
+from conftest import DATA, require
 from rpmnet_jax.evaluation import scan_poses
 from rpmnet_jax.scans import cloud_io
 
@@ -13,8 +13,7 @@ BUNNY = DATA / "stanford_bunny"
 
 @pytest.fixture(scope="module")
 def bunny():
-    if not (BUNNY / "bun.conf").is_file():
-        pytest.skip(f"Stanford bunny scans not found at {BUNNY}")
+    require(BUNNY / "bun.conf", "Stanford bunny scans")
     mesh, _ = cloud_io.read_cloud(str(BUNNY / "bun_zipper_res2.ply"))
     return scan_poses.read_poses(str(BUNNY / "bun.conf")), cKDTree(mesh)
 
