@@ -198,6 +198,26 @@ def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, capsys):
     assert rc == 2 and "does not exist" in capsys.readouterr().err
 
 
+def test_cli_writes_poses_merged_cloud_and_plot(tmp_path, capsys):
+    clouds, poses = _synthetic_scans()
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    paths = _write_scans(folder, clouds, ["s0", "s1", "s2"])
+    out, merged, plot = tmp_path / "poses.conf", tmp_path / "merged.ply", tmp_path / "scans.png"
+    rc = register_scans.main([str(folder), "--out-poses", str(out), "--out-merged", str(merged), "--plot", str(plot)])
+    assert rc == 0, capsys.readouterr().err
+    got = scan_poses.read_poses(str(out))
+    assert list(got) == ["s0", "s1", "s2"] and out.read_text().startswith("bmesh s0.npy 0 0 0 0 0 0 1")
+    truth = np.linalg.inv(poses[0]) @ poses
+    for name, want in zip(got, truth):
+        assert rotation_error_deg(got[name][:3, :3], want[:3, :3]) < 1.0
+    points, _ = cloud_io.read_cloud(str(merged))
+    assert "property double x" in merged.read_bytes()[:300].decode("ascii", "replace")  # float64
+    want = np.concatenate([c @ t[:3, :3].T + t[:3, 3] for c, t in zip(clouds, truth)])
+    assert points.shape == want.shape and np.sqrt(np.mean(np.sum((points - want) ** 2, axis=1))) < 2e-3
+    assert plot.stat().st_size > 0 and len(paths) == 3
+
+
 def test_console_entry_point_starts():
     import subprocess
     import sys
