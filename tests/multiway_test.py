@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from conftest import DATA, rotation_error_deg
+from conftest import DATA, require, rotation_error_deg
 import rpmnet_jax
 from rpmnet_jax.cli import register_scans
 from rpmnet_jax.evaluation import scan_poses
@@ -138,8 +138,7 @@ def test_pose_errors_relative_to_the_first_scan():
 
 @pytest.fixture(scope="module")
 def bunny():
-    if not (BUNNY / "bun.conf").is_file():
-        pytest.skip(f"Stanford bunny scans not found at {BUNNY}")
+    require(BUNNY / "bun.conf", "Stanford bunny scans")
     return scan_poses.read_poses(str(BUNNY / "bun.conf"))
 
 
