@@ -111,8 +111,8 @@ def test_gradient_bound_catches_a_wrong_backward(case, monkeypatch):
     exact = _float64_gradients(params, batch)
     from rpmnet_jax.nn import group_norm as gn
 
-    def dropped_term(dy, xhat, inv_g, scale, groups):
-        dx, dscale, dbias = _true_backward(dy, xhat, inv_g, scale, groups)
+    def dropped_term(dy, xhat, inv_g, scale, groups, sums=None):
+        dx, dscale, dbias = _true_backward(dy, xhat, inv_g, scale, groups, sums)
         b, c = xhat.shape[0], xhat.shape[-1]
         g = (dy * scale).reshape(b, -1, groups, c // groups)
         xg = xhat.reshape(b, -1, groups, c // groups)

@@ -110,25 +110,39 @@ def mlp_max(x, layers: Sequence[Layer], groups: int = 8, eps: float = gn.EPS):
     return _inference_forward(x, layers, groups, eps)
 
 
+def _normalised(u, mean_g, inv_g, layer: Layer):
+    """``xhat = (u + b - mean) * inv`` of ``u (B, ..., C)``."""
+    c = u.shape[-1]
+    return (u - (gn.per_channel(mean_g, c, u.ndim) - layer.bias)) * gn.per_channel(inv_g, c, u.ndim)
+
+
 def _mlp_max_fwd(x, layers, groups, eps):
     h, saved = _forward(x, layers, groups, eps)
     arg = jnp.argmax(h, axis=2).astype(jnp.int32)  # (B, N, C)
-    out = jnp.take_along_axis(h, arg[:, :, None, :], axis=2)[:, :, 0, :]
-    return out, (x, tuple(layers), tuple(saved), arg)
+    pooled = lambda t: jnp.take_along_axis(t, arg[:, :, None, :], axis=2)[:, :, 0, :]
+    out = pooled(h)
+    return out, (x, tuple(layers), tuple(saved), arg, out, pooled(saved[-1][0]))
 
 
 def _mlp_max_bwd(groups, eps, res, d_out):
-    x, layers, saved, arg = res
+    x, layers, saved, arg, out, u_pooled = res
     k = x.shape[2]
+    # The pooled gradient reaches one neighbour per (point, channel), and only where that ReLU is active
+    # (out > 0). The last GroupNorm's channel sums of dy and dy * xhat are therefore sums over the pooled
+    # (B, N, C) values, k times fewer than over the dense (B, N, k, C) gradient.
+    d_pool = jnp.where(out > 0, d_out, 0.0)  # (B, N, C)
+    layer, (u, mean_g, inv_g) = layers[-1], saved[-1]
+    sums = jnp.sum(d_pool, axis=1), jnp.sum(d_pool * _normalised(u_pooled, mean_g, inv_g, layer), axis=1)
     hit = jnp.arange(k, dtype=jnp.int32)[None, None, :, None] == arg[:, :, None, :]
-    dh = jnp.where(hit, d_out[:, :, None, :], 0.0)  # (B, N, k, C): gradient reaching the last ReLU
+    dh = jnp.where(hit, d_pool[:, :, None, :], 0.0)  # (B, N, k, C): gradient after the last ReLU's mask
     grads = []
     for i in range(len(layers) - 1, -1, -1):
         layer, (u, mean_g, inv_g) = layers[i], saved[i]
         c = u.shape[-1]
-        active = _pre_activation(u, mean_g, inv_g, layer) > 0
-        xhat = (u - (gn.per_channel(mean_g, c, u.ndim) - layer.bias)) * gn.per_channel(inv_g, c, u.ndim)
-        dz, d_scale, d_shift = gn.backward(jnp.where(active, dh, 0.0), xhat, inv_g, layer.scale, groups)
+        if i < len(layers) - 1:
+            dh, sums = jnp.where(_pre_activation(u, mean_g, inv_g, layer) > 0, dh, 0.0), None
+        dz, d_scale, d_shift = gn.backward(dh, _normalised(u, mean_g, inv_g, layer), inv_g, layer.scale, groups,
+                                           sums)
         h_in = x if i == 0 else jax.nn.relu(_pre_activation(*saved[i - 1], layers[i - 1]))
         c_in = h_in.shape[-1]
         d_kernel = h_in.reshape(-1, c_in).T @ dz.reshape(-1, c)

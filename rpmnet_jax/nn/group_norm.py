@@ -57,18 +57,21 @@ def _group_norm_fwd(x, scale, bias, groups, eps):
     return y, (x, scale, mean_g, inv_g)
 
 
-def backward(dy, xhat, inv_g, scale, groups: int):
+def backward(dy, xhat, inv_g, scale, groups: int, sums=None):
     """GroupNorm backward from the normalised input ``xhat (B, ..., C)``, ``1/std (B, G)`` and ``scale (C,)``:
     ``(dx, dscale, dbias)`` for the output gradient ``dy``.
 
-    Two reductions over the large tensor, both to per-sample channel sums ``(B, C)`` along its contiguous
-    channel axis; everything per group or per channel is derived from those (summing straight to ``(B, G)``
-    over a strided ``(B, R, G, C/G)`` view is several times slower on CPU).
+    ``sums``: the per-sample channel sums ``(sum dy, sum dy * xhat)``, each ``(B, C)``, when the caller has
+    them more cheaply (a ``dy`` that is zero but for one element per max-pool window); otherwise two
+    reductions over the large tensor compute them along its contiguous channel axis (summing straight to
+    ``(B, G)`` over a strided ``(B, R, G, C/G)`` view is several times slower on CPU). Everything per group
+    or per channel is derived from those sums.
     """
     b, c = xhat.shape[0], xhat.shape[-1]
-    rows = lambda t: t.reshape(b, -1, c)
-    sum_dy = jnp.sum(rows(dy), axis=1)  # (B, C)
-    sum_dyx = jnp.sum(rows(dy * xhat), axis=1)  # (B, C)
+    if sums is None:
+        rows = lambda t: t.reshape(b, -1, c)
+        sums = jnp.sum(rows(dy), axis=1), jnp.sum(rows(dy * xhat), axis=1)
+    sum_dy, sum_dyx = sums  # (B, C)
     count = (xhat.size // (b * c)) * (c // groups)  # elements per sample and group
     group_mean = lambda t: jnp.sum((t * scale).reshape(b, groups, -1), axis=-1) / count  # (B, G)
     mean_g_dy, mean_g_dyx = group_mean(sum_dy), group_mean(sum_dyx)
