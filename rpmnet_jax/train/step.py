@@ -64,7 +64,7 @@ def make_train_step(cfg: TrainConfig, total_steps: int = 0):
 
     def loss_fn(params, batch):
         reg = registration.register(params, batch["points_src"], batch["points_ref"], mcfg,
-                                    num_iters=mcfg.num_train_reg_iters)
+                                    num_iters=mcfg.num_train_reg_iters, unroll=True)
         terms = losses.loss_terms(reg, batch, mcfg)
         return terms["total"], (terms, jnp.mean(reg.alpha, -1), jnp.mean(reg.beta, -1))
 
