@@ -35,9 +35,9 @@ def main(argv=None) -> int:
     p.add_argument("--scans", required=True, help="folder with the scans (.ply) and bun.conf")
     p.add_argument("--conf", default="bun.conf", help="pose file inside --scans")
     p.add_argument("--pairs", default=DEFAULT_PAIRS, help="comma-separated SRC:REF scan names")
-    p.add_argument("--methods", default="rpmnet,rpmnet_auto,rpmnet_global,icp,fgr,identity",
+    p.add_argument("--methods", default="rpmnet,rpmnet_auto,rpmnet_global,ransac_icp,fgr_icp,fgr,icp,identity",
                    help="rpmnet (the network alone), rpmnet_icp / rpmnet_auto / rpmnet_global (rpmnet-register's "
-                        "pipeline with a local, automatic or global start, ICP-refined on the full scans), icp, fgr, "
+                        "pipeline with a local, automatic or global start, ICP-refined on the full scans), ransac_icp / fgr_icp (Open3D: FPFH + RANSAC or FGR, then point-to-plane ICP), icp, fgr, "
                         "rpm, identity")
     p.add_argument("--checkpoint", default=None, help="weights for rpmnet (default: shipped model)")
     p.add_argument("--num-points", type=int, default=1024)

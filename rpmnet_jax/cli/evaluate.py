@@ -28,7 +28,7 @@ def parse_args(argv=None):
                    help="test = unseen last 20 categories (paper); val = test files, first 20 categories")
     p.add_argument("--checkpoint", default=None,
                    help="orbax training dir, .npz of official weights, or official .pth (default: shipped model)")
-    p.add_argument("--methods", default="rpmnet,rpmnet_auto,rpm,icp,fgr,identity",
+    p.add_argument("--methods", default="rpmnet,rpmnet_auto,ransac_icp,fgr_icp,rpm,icp,fgr,identity",
                    help=f"comma-separated subset of {','.join(protocol.METHODS)}")
     p.add_argument("--transforms-file", default=None,
                    help=".npy of (N, I, 3, 4) or (N, 3, 4) transforms produced elsewhere, evaluated as 'file'")

@@ -17,7 +17,8 @@ from rpmnet_jax.data import loader
 from rpmnet_jax import metrics
 from rpmnet_jax import config as config_lib
 
-METHODS = ("rpmnet", "rpmnet_icp", "rpmnet_auto", "rpmnet_global", "icp", "fgr", "rpm", "identity")
+METHODS = ("rpmnet", "rpmnet_icp", "rpmnet_auto", "rpmnet_global", "icp", "fgr", "ransac_icp", "fgr_icp", "rpm",
+           "identity")
 # the registration pipeline of :func:`rpmnet_jax.align` with these options
 PIPELINES = {"rpmnet_icp": dict(init="local", refine="icp"), "rpmnet_auto": dict(init="auto", refine="icp"),
              "rpmnet_global": dict(init="global", refine="icp")}
@@ -44,7 +45,9 @@ def method_fn(name: str, params=None, cfg: config_lib.RPMNetConfig | None = None
     """``f(src (B,J,6), ref (B,K,6)) -> transforms (B, I, 3, 4)`` (I = 1 for single-shot methods).
 
     ``rpmnet`` is the network alone (the paper); ``rpmnet_icp``, ``rpmnet_auto`` and ``rpmnet_global`` are
-    :func:`rpmnet_jax.align`'s pipeline with a local, automatic or global start and ICP refinement.
+    :func:`rpmnet_jax.align`'s pipeline with a local, automatic or global start and ICP refinement;
+    ``ransac_icp`` and ``fgr_icp`` are Open3D's classical recipe (FPFH + RANSAC or FGR, then robust
+    point-to-plane ICP; :func:`baselines.global_then_icp`).
     """
     if name == "rpmnet":
         return _rpmnet_fn(params, cfg or config_lib.RPMNetConfig(), num_iters)
@@ -54,11 +57,13 @@ def method_fn(name: str, params=None, cfg: config_lib.RPMNetConfig | None = None
         return lambda s, r: baselines.identity(s, r)[:, None]
     if name == "rpm":
         return lambda s, r: np.asarray(baselines.classical_rpm(s[..., :3], r[..., :3]))[-1][:, None]
-    if name in ("icp", "fgr"):
+    if name in ("icp", "fgr", "ransac_icp", "fgr_icp"):
         why = baselines.open3d_available()
         if why:
             raise RuntimeError(why)
-        f = baselines.icp if name == "icp" else baselines.fgr
+        f = {"icp": baselines.icp, "fgr": baselines.fgr,
+             "ransac_icp": lambda s, r: baselines.global_then_icp(s, r, "ransac"),
+             "fgr_icp": lambda s, r: baselines.global_then_icp(s, r, "fgr")}[name]
         return lambda s, r: f(s, r)[:, None]
     raise ValueError(f"unknown method {name!r}; choose from {METHODS}")
 
