@@ -10,6 +10,8 @@ import time
 
 import numpy as np
 
+from rpmnet_jax.cli import runtime
+
 METHODS = ("rpmnet_multiway", "open3d_multiway")
 
 
@@ -37,9 +39,7 @@ def run(a) -> int:
             methods.remove("open3d_multiway")
         if a.repeat < 1:
             raise ValueError(f"--repeat must be >= 1, got {a.repeat}")
-        for out in (a.output, a.plot):
-            if out and not os.path.isdir(os.path.dirname(os.path.abspath(out))):
-                raise ValueError(f"output folder of {out} does not exist")
+        runtime.check_outputs(a.output, a.plot)
         files = {os.path.splitext(f)[0]: f for f in os.listdir(a.scans)}
         missing = [n for n in names if n not in files]
         if missing:

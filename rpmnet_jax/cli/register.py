@@ -6,10 +6,11 @@ Exit codes: 0 success, 2 bad input or arguments (one-line message, nothing writt
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 import warnings
+
+from rpmnet_jax.cli import runtime
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -48,9 +49,7 @@ def main(argv=None) -> int:
     from rpmnet_jax.weights import loading
 
     try:
-        for out in (args.out_transform, args.out_aligned, args.plot):
-            if out and not os.path.isdir(os.path.dirname(os.path.abspath(out))):
-                raise ValueError(f"output folder of {out} does not exist")
+        runtime.check_outputs(args.out_transform, args.out_aligned, args.plot)
         if args.out_aligned:
             cloud_io._ext(args.out_aligned)
         src, src_n = cloud_io.read_cloud(args.src)
@@ -102,7 +101,6 @@ def main(argv=None) -> int:
 
 def entry() -> None:
     """Console script ``rpmnet-register``."""
-    from rpmnet_jax.cli import runtime
     runtime.run(main)
 
 

@@ -17,6 +17,8 @@ import sys
 import time
 import warnings
 
+from rpmnet_jax.cli import runtime
+
 PROG = "rpmnet-register-scans"
 
 
@@ -74,9 +76,7 @@ def main(argv=None) -> int:
 
     t0 = time.perf_counter()
     try:
-        for out in (args.out_poses, args.out_merged, args.plot):
-            if out and not os.path.isdir(os.path.dirname(os.path.abspath(out))):
-                raise ValueError(f"output folder of {out} does not exist")
+        runtime.check_outputs(args.out_poses, args.out_merged, args.plot)
         if args.out_merged:
             cloud_io._ext(args.out_merged)
         if args.merged_voxel is not None and not args.merged_voxel > 0:
@@ -135,7 +135,6 @@ def main(argv=None) -> int:
 
 def entry() -> None:
     """Console script ``rpmnet-register-scans``."""
-    from rpmnet_jax.cli import runtime
     runtime.run(main)
 
 

@@ -89,6 +89,14 @@ def enable_compilation_cache() -> str | None:
     return folder
 
 
+def check_outputs(*paths) -> None:
+    """Raises ``ValueError`` (one line) when the folder of any given output path does not exist, before
+    anything is computed or written."""
+    for out in paths:
+        if out and not os.path.isdir(os.path.dirname(os.path.abspath(out))):
+            raise ValueError(f"output folder of {out} does not exist")
+
+
 def run(main, huge_pages: bool = False) -> None:
     """A console script's whole life: huge pages (``huge_pages``: training only), the compilation cache, library
     logs on the terminal, then ``sys.exit(main())``."""
