@@ -97,12 +97,10 @@ def test_transforms_file_with_ground_truth_gives_zero_error(tiny_root, tmp_path)
     col = {name: np.array([float(r[header.index(name)]) for r in rows]) for name in header}
     for name in ("r_mae", "t_mae", "err_t"):  # the file's transforms are the ground truth bit for bit
         np.testing.assert_array_equal(col[name], 0.0, err_msg=name)
-    # The isotropic angle is arccos((tr(RᵀR) − 1)/2) of a float32 R that is orthogonal only to ~6e-8: with
-    # d = |tr(RᵀR) − 3| it is arccos(1 − d/2) ≈ sqrt(d) rad (by hand), the only error left.
-    rot = gt[:, :, :3].astype(np.float64)
-    defect = np.abs(np.einsum("bji,bji->b", rot, rot) - 3.0)
-    assert np.all(col["err_r_deg"] <= np.degrees(np.sqrt(defect)) * 1.001 + 1e-9)
-    assert col["err_r_deg"].max() < 0.02
+    # The isotropic angle of the residual M = RᵀR is atan2(|vee(M - Mᵀ)| / 2, (tr M - 1) / 2): M is exactly
+    # symmetric in floating point (the same products in the same order), so the angle is 0 up to round-off
+    # (an arccos of the trace alone read the float32 orthogonality defect of R as up to 0.013°).
+    assert col["err_r_deg"].max() < 1e-4
     floor = metrics.registration_metrics(gt, gt, np.stack([s["points_src"] for s in samples]),
                                          np.stack([s["points_ref"] for s in samples]),
                                          np.stack([s["points_raw"] for s in samples]))["chamfer_dist"]

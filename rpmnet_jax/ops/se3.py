@@ -57,10 +57,14 @@ def to_homogeneous(transform):
 
 
 def rotation_angle_deg(rot):
-    """Angle in degrees of rotations ``(*, 3, 3)`` (NumPy float64)."""
+    """Angle in degrees of rotations ``(*, 3, 3)`` (NumPy float64), as ``atan2(sin, cos)`` with
+    ``sin = |vee(R - Rᵀ)| / 2`` and ``cos = (tr R - 1) / 2``: the arccos of the cosine alone loses precision
+    near 0° and 180° (an orthogonality defect d of a float32 R reads as ~sqrt(d) rad; here as ~d)."""
     rot = np.asarray(rot, np.float64)
-    trace = rot[..., 0, 0] + rot[..., 1, 1] + rot[..., 2, 2]
-    return np.degrees(np.arccos(np.clip(0.5 * (trace - 1.0), -1.0, 1.0)))
+    cos = 0.5 * (rot[..., 0, 0] + rot[..., 1, 1] + rot[..., 2, 2] - 1.0)
+    skew = np.stack([rot[..., 2, 1] - rot[..., 1, 2], rot[..., 0, 2] - rot[..., 2, 0],
+                     rot[..., 1, 0] - rot[..., 0, 1]], axis=-1)
+    return np.degrees(np.arctan2(0.5 * np.linalg.norm(skew, axis=-1), cos))
 
 
 def quaternion_to_matrix(q):
