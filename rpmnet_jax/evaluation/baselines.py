@@ -84,7 +84,8 @@ def _fpfh(pc, radius: float, max_nn: int):
 
 
 def _fgr_pair(ps, pr, fs, fr, max_correspondence: float) -> np.ndarray:
-    reg = __import__("open3d").pipelines.registration
+    import open3d as o3d
+    reg = o3d.pipelines.registration
     return np.asarray(reg.registration_fgr_based_on_feature_matching(
         ps, pr, fs, fr, reg.FastGlobalRegistrationOption(maximum_correspondence_distance=max_correspondence))
         .transformation)
@@ -93,7 +94,8 @@ def _fgr_pair(ps, pr, fs, fr, max_correspondence: float) -> np.ndarray:
 def _ransac_pair(ps, pr, fs, fr, max_distance: float) -> np.ndarray:
     """Open3D's RANSAC on FPFH matches (its tutorial's recipe): mutual filter, point-to-point, 3 points per
     hypothesis, edge-length (0.9) and distance checkers, 100k iterations at confidence 0.999."""
-    reg = __import__("open3d").pipelines.registration
+    import open3d as o3d
+    reg = o3d.pipelines.registration
     return np.asarray(reg.registration_ransac_based_on_feature_matching(
         ps, pr, fs, fr, True, max_distance, reg.TransformationEstimationPointToPoint(False), 3,
         [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(max_distance)],
@@ -102,7 +104,8 @@ def _ransac_pair(ps, pr, fs, fr, max_distance: float) -> np.ndarray:
 
 def _icp_point_to_plane(ps, pr, init, threshold: float, tukey_k: float, max_iterations: int) -> np.ndarray:
     """Robust (Tukey) point-to-plane ICP from ``init (4, 4)`` (the reference's normals)."""
-    reg = __import__("open3d").pipelines.registration
+    import open3d as o3d
+    reg = o3d.pipelines.registration
     return np.asarray(reg.registration_icp(
         ps, pr, threshold, init, reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=tukey_k)),
         reg.ICPConvergenceCriteria(max_iteration=max_iterations)).transformation)
@@ -154,8 +157,7 @@ def open3d_multiway(clouds, voxel_size: float, seed: int = 0) -> np.ndarray:
     for points in clouds:
         pc = _o3d_cloud(np.asarray(points, np.float64)).voxel_down_sample(voxel_size)
         pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel_size, max_nn=30))
-        feats.append(reg.compute_fpfh_feature(pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel_size,
-                                                                                          max_nn=100)))
+        feats.append(_fpfh(pc, 5 * voxel_size, 100))
         downs.append(pc)
     coarse, fine = 15 * voxel_size, 1.5 * voxel_size
     graph = reg.PoseGraph()
@@ -163,11 +165,8 @@ def open3d_multiway(clouds, voxel_size: float, seed: int = 0) -> np.ndarray:
     graph.nodes.append(reg.PoseGraphNode(odometry))
     for i in range(len(downs)):
         for j in range(i + 1, len(downs)):
-            ransac = reg.registration_ransac_based_on_feature_matching(
-                downs[i], downs[j], feats[i], feats[j], True, fine, reg.TransformationEstimationPointToPoint(False), 3,
-                [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(fine)],
-                reg.RANSACConvergenceCriteria(100000, 0.999))
-            icp_coarse = reg.registration_icp(downs[i], downs[j], coarse, ransac.transformation,
+            ransac = _ransac_pair(downs[i], downs[j], feats[i], feats[j], fine)
+            icp_coarse = reg.registration_icp(downs[i], downs[j], coarse, ransac,
                                               reg.TransformationEstimationPointToPlane())
             icp_fine = reg.registration_icp(downs[i], downs[j], fine, icp_coarse.transformation,
                                             reg.TransformationEstimationPointToPlane())

@@ -50,12 +50,7 @@ def _layer(h, layer: Layer, groups: int, eps: float):
     (the bias is never added to the ``(B, N, k, C)`` product on its own) and ``mean_g, inv_g (B, G)`` are
     the group statistics of ``z = u + b`` (channel means shift by ``b``, variances do not)."""
     u = h @ layer.kernel
-    b, c = u.shape[0], u.shape[-1]
-    rows = u.reshape(b, -1, c)
-    mean_u = jnp.mean(rows, axis=1)
-    var_c = jnp.mean(jnp.square(rows - mean_u[:, None, :]), axis=1)
-    mean_g, inv_g = gn.pool_group_stats(mean_u + layer.bias, var_c, groups, eps)
-    return u, mean_g, inv_g
+    return (u,) + gn.group_stats(u, groups, eps, shift=layer.bias)
 
 
 def _pre_activation(u, mean_g, inv_g, layer: Layer):
@@ -110,12 +105,6 @@ def mlp_max(x, layers: Sequence[Layer], groups: int = 8, eps: float = gn.EPS):
     return _inference_forward(x, layers, groups, eps)
 
 
-def _normalised(u, mean_g, inv_g, layer: Layer):
-    """``xhat = (u + b - mean) * inv`` of ``u (B, ..., C)``."""
-    c = u.shape[-1]
-    return (u - (gn.per_channel(mean_g, c, u.ndim) - layer.bias)) * gn.per_channel(inv_g, c, u.ndim)
-
-
 def _mlp_max_fwd(x, layers, groups, eps):
     h, saved = _forward(x, layers, groups, eps)
     arg = jnp.argmax(h, axis=2).astype(jnp.int32)  # (B, N, C)
@@ -132,7 +121,7 @@ def _mlp_max_bwd(groups, eps, res, d_out):
     # (B, N, C) values, k times fewer than over the dense (B, N, k, C) gradient.
     d_pool = jnp.where(out > 0, d_out, 0.0)  # (B, N, C)
     layer, (u, mean_g, inv_g) = layers[-1], saved[-1]
-    sums = jnp.sum(d_pool, axis=1), jnp.sum(d_pool * _normalised(u_pooled, mean_g, inv_g, layer), axis=1)
+    sums = jnp.sum(d_pool, axis=1), jnp.sum(d_pool * gn.normalise(u_pooled + layer.bias, mean_g, inv_g), axis=1)
     hit = jnp.arange(k, dtype=jnp.int32)[None, None, :, None] == arg[:, :, None, :]
     dh = jnp.where(hit, d_pool[:, :, None, :], 0.0)  # (B, N, k, C): gradient after the last ReLU's mask
     grads = []
@@ -141,8 +130,8 @@ def _mlp_max_bwd(groups, eps, res, d_out):
         c = u.shape[-1]
         if i < len(layers) - 1:
             dh, sums = jnp.where(_pre_activation(u, mean_g, inv_g, layer) > 0, dh, 0.0), None
-        dz, d_scale, d_shift = gn.backward(dh, _normalised(u, mean_g, inv_g, layer), inv_g, layer.scale, groups,
-                                           sums)
+        dz, d_scale, d_shift = gn.backward(dh, gn.normalise(u + layer.bias, mean_g, inv_g), inv_g, layer.scale,
+                                           groups, sums)
         h_in = x if i == 0 else jax.nn.relu(_pre_activation(*saved[i - 1], layers[i - 1]))
         c_in = h_in.shape[-1]
         d_kernel = h_in.reshape(-1, c_in).T @ dz.reshape(-1, c)

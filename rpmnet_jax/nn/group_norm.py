@@ -12,8 +12,9 @@ import flax.linen as nn
 EPS = 1e-5  # torch.nn.GroupNorm default
 
 
-def group_stats(x, groups: int, eps: float):
-    """Per-sample, per-group mean and 1/std ``(B, G)`` of ``x (B, ..., C)``.
+def group_stats(x, groups: int, eps: float, shift=None):
+    """Per-sample, per-group mean and 1/std ``(B, G)`` of ``x (B, ..., C)``, or of ``x + shift`` for a
+    per-channel ``shift (C,)`` without forming that sum (channel means move by ``shift``, variances do not).
 
     Two cheap reductions (channel means, then centred channel variances; neither materialises a copy of
     ``x``), pooled per group with the parallel-variance formula.
@@ -22,7 +23,7 @@ def group_stats(x, groups: int, eps: float):
     rows = x.reshape(b, -1, c)
     mean_c = jnp.mean(rows, axis=1)
     var_c = jnp.mean(jnp.square(rows - mean_c[:, None, :]), axis=1)
-    return pool_group_stats(mean_c, var_c, groups, eps)
+    return pool_group_stats(mean_c if shift is None else mean_c + shift, var_c, groups, eps)
 
 
 def pool_group_stats(mean_c, var_c, groups: int, eps: float):
