@@ -88,3 +88,9 @@ def test_fused_training_gradients_are_closer_to_float64_than_float32_autodiff():
     for name, g in fused32.items():
         rel = np.linalg.norm(g - exact[name]) / np.linalg.norm(exact[name])
         assert rel <= 1e-5, f"{name}: {rel:.1e}"
+
+
+def test_first_argmax_is_jnp_argmax_with_ties():
+    """Padded neighbourhood slots repeat the centre, so exact ties are common: the first maximum wins."""
+    h = jnp.asarray(np.random.default_rng(0).integers(0, 3, size=(2, 5, 64, 7)), jnp.float32)  # many ties
+    np.testing.assert_array_equal(fused_mlp_max._first_argmax(h, jnp.max(h, axis=2)), jnp.argmax(h, axis=2))
