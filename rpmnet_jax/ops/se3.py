@@ -56,6 +56,42 @@ def to_homogeneous(transform):
     return xp.concatenate([transform, bottom], axis=-2)
 
 
+def hat(omega):
+    """Skew matrices ``(*, 3, 3)`` of vectors ``omega (*, 3)``: ``hat(w) @ x = w × x``."""
+    xp = _xp(omega)
+    x, y, z = omega[..., 0], omega[..., 1], omega[..., 2]
+    zero = xp.zeros_like(x)
+    return xp.stack([xp.stack([zero, -z, y], -1), xp.stack([z, zero, -x], -1), xp.stack([-y, x, zero], -1)], -2)
+
+
+def exp(twist):
+    """SE(3) exponential of twists ``twist (*, 6) = (ω, v)`` (rotation first, as GTSAM's ``Pose3``) →
+    ``(*, 3, 4)`` ``[R | V v]``: the matrix exponential of ``[[hat(ω), v], [0, 0]]``.
+
+    ``R = I + a K + b K²`` (Rodrigues), ``V = I + b K + c K²`` with ``K = hat(ω)``, ``θ = |ω|``,
+    ``a = sin θ / θ``, ``b = (1 - cos θ) / θ²``, ``c = (θ - sin θ) / θ³``; below ``θ² = sqrt(eps)`` of the
+    dtype the coefficients are their Taylor series, so the values and (JAX) gradients are finite at ``θ = 0``.
+    """
+    xp = _xp(twist)
+    if not xp.issubdtype(twist.dtype, xp.floating):
+        twist = twist.astype(xp.float64 if xp is np else xp.float32)
+    omega, v = twist[..., :3], twist[..., 3:]
+    t = xp.sum(omega * omega, axis=-1)
+    small = t < float(xp.finfo(twist.dtype).eps) ** 0.5
+    t_safe = xp.where(small, xp.ones_like(t), t)  # the double-where: no 0/0 on either branch (nor its gradient)
+    theta = xp.sqrt(t_safe)
+    sin, half_sin = xp.sin(theta), xp.sin(0.5 * theta)
+    a = xp.where(small, 1 - t / 6 + t * t / 120, sin / theta)
+    b = xp.where(small, 0.5 - t / 24 + t * t / 720, 2 * half_sin * half_sin / t_safe)
+    c = xp.where(small, 1 / 6 - t / 120 + t * t / 5040, (theta - sin) / (t_safe * theta))
+    k = hat(omega)
+    k2 = k @ k
+    eye = xp.eye(3, dtype=twist.dtype)
+    rot = eye + a[..., None, None] * k + b[..., None, None] * k2
+    trans = ((eye + b[..., None, None] * k + c[..., None, None] * k2) @ v[..., None])[..., 0]
+    return xp.concatenate([rot, trans[..., None]], axis=-1)
+
+
 def rotation_angle_deg(rot):
     """Angle in degrees of rotations ``(*, 3, 3)`` (NumPy float64), as ``atan2(sin, cos)`` with
     ``sin = |vee(R - Rᵀ)| / 2`` and ``cos = (tr R - 1) / 2``: the arccos of the cosine alone loses precision

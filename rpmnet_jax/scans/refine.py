@@ -16,20 +16,13 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from rpmnet_jax.ops import se3
+
 
 class Refinement(NamedTuple):
     transform: np.ndarray  # (4, 4): maps source onto reference
     converged: bool  # every stage ended on the tolerance, not on max_iterations
     num_iterations: int  # over all stages
-
-
-def _rodrigues(omega: np.ndarray) -> np.ndarray:
-    theta = float(np.linalg.norm(omega))
-    if theta < 1e-12:
-        return np.eye(3)
-    k = omega / theta
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
 
 
 def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, scales=(4.0, 2.0, 1.0),
@@ -70,7 +63,7 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, scal
             a[np.diag_indices(6)] += 1e-9 * max(np.trace(a), 1e-12)
             x = np.linalg.solve(a, b)
             step = np.eye(4)
-            step[:3, :3] = _rodrigues(x[:3])
+            step[:3, :3] = se3.exp(np.concatenate([x[:3], np.zeros(3)]))[:, :3]  # the rotation of omega
             step[:3, 3] = x[3:]
             transform = step @ transform
             if np.linalg.norm(x[:3]) < tolerance and np.linalg.norm(x[3:]) < tolerance * radius:
