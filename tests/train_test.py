@@ -408,3 +408,24 @@ def test_cli_prints_resume_and_validation_lines(tmp_path):
     second = subprocess.run(args + ["--max-steps", "2"], capture_output=True, text=True, cwd=REPO)
     assert second.returncode == 0, second.stderr[-2000:]
     assert "resumed from step 1" in second.stderr and "step 2 validation" in second.stderr
+
+
+def test_rot_mag_sets_the_training_rotations_only_and_is_kept_on_resume(tmp_path):
+    import json
+    from rpmnet_jax.ops import se3
+    from rpmnet_jax.train import config as train_config
+    from rpmnet_jax.train import loop as train_loop
+    cfg = tiny_cfg(tmp_path / "run", rot_mag=180.0)
+    train_config.check_and_save(cfg)
+    train_set, val_set = train_loop._datasets(cfg)
+    angle = lambda s: float(se3.rotation_angle_deg(s["transform_gt"][:, :3]))
+    train_angles = [angle(train_set.get(i)) for i in range(len(train_set))]
+    val_angles = [angle(val_set.get(i)) for i in range(len(val_set))]
+    assert max(train_angles) > 100.0  # beyond what 45 degrees per Euler axis give (< 84 in 20,000 draws)
+    assert max(val_angles) < 90.0  # validation stays at the paper's 45 degrees per axis
+    with pytest.raises(training.ConfigMismatchError, match="rot_mag 180.0 there, 45.0 now"):
+        train_config.check_and_save(tiny_cfg(tmp_path / "run"))
+    saved = json.loads((tmp_path / "run" / "config.json").read_text())
+    del saved["rot_mag"]  # a run saved before the setting existed trained at 45 degrees
+    (tmp_path / "run" / "config.json").write_text(json.dumps(saved))
+    train_config.check_and_save(tiny_cfg(tmp_path / "run"))

@@ -34,6 +34,8 @@ def parse_args(argv=None) -> training.TrainConfig:
     p.add_argument("--max-steps", type=int, default=None, help="stop after this many steps in total (resumed ones count)")
     p.add_argument("--batch-size", type=int, default=None, help="default 8 for partial, 4 for clean/noisy")
     p.add_argument("--num-points", type=int, default=1024, help="points per full cloud (partial keeps 70%%)")
+    p.add_argument("--rot-mag", type=float, default=45.0,
+                   help="largest training rotation per Euler axis, degrees (default 45 as the paper; validation stays at 45)")
     p.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate (default 1e-4)")
     p.add_argument("--val-every", type=int, default=1, help="validate every N epochs")
     p.add_argument("--val-limit", type=int, default=None, help="validate on at most N pairs")
@@ -78,6 +80,8 @@ def parse_args(argv=None) -> training.TrainConfig:
             p.error(f"--{name.replace('_', '-')} must be >= 1")
     if a.init_from is not None and not os.path.exists(a.init_from):
         p.error(f"--init-from {a.init_from!r} does not exist")
+    if not 0.0 <= a.rot_mag <= 180.0:
+        p.error("--rot-mag must be in [0, 180]")
     if a.ema_decay is not None and not 0.0 < a.ema_decay < 1.0:
         p.error("--ema-decay must be in (0, 1)")
     if a.batch_size is not None and a.batch_size < 1:
@@ -91,7 +95,7 @@ def parse_args(argv=None) -> training.TrainConfig:
     return training.TrainConfig(
         dataset=a.dataset, data_root=a.data_root, synthetic=a.synthetic, synthetic_train=a.synthetic_train,
         synthetic_test=a.synthetic_test, workdir=a.workdir or os.path.join("runs", a.dataset), epochs=a.epochs,
-        max_steps=a.max_steps, batch_size=a.batch_size, num_points=a.num_points, lr=a.lr, val_every=a.val_every,
+        max_steps=a.max_steps, batch_size=a.batch_size, num_points=a.num_points, rot_mag=a.rot_mag, lr=a.lr, val_every=a.val_every,
         val_limit=a.val_limit, save_every=a.save_every, keep=a.keep, seed=a.seed, init_from=a.init_from,
         lr_schedule=a.lr_schedule, warmup_steps=a.warmup_steps, lr_final=a.lr_final, clip_norm=a.clip_norm,
         ema_decay=a.ema_decay, val_every_steps=a.val_every_steps, model=model_cfg), not a.no_progress, a
