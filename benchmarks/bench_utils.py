@@ -68,9 +68,31 @@ def run_worker(cmd: list, env: dict, record: dict, jsonl: str | None = None) -> 
 
 def session(script: str, argv, threads: int, malloc: str) -> dict:
     """What a results table states about its run: date, CPU, threads, malloc setting and the command line."""
-    args = sys.argv[1:] if argv is None else argv
+    args = list(sys.argv[1:] if argv is None else argv)
     return {"date": datetime.date.today().isoformat(), "cpu": cpu_model(), "cpus": available_cpus(),
-            "threads": threads, "malloc": malloc, "command": " ".join(["python", f"benchmarks/{script}", *args])}
+            "threads": threads, "malloc": malloc,
+            "command": " ".join(["python", f"benchmarks/{script}", *_without_paths(args)])}
+
+
+_PATH_FLAGS = {"--torch-src": "PATH/TO/RPMNet/src", "--out-md": None, "--out-png": None, "--out-jsonl": None}
+
+
+def _without_paths(args: list) -> list:
+    """The command line as a table states it: the official checkout's location as a placeholder, output
+    paths left out (both are this machine's, not the measurement's)."""
+    out, skip = [], False
+    for arg in args:
+        if skip:
+            skip = False
+            continue
+        flag, _, value = arg.partition("=")
+        if flag in _PATH_FLAGS:
+            skip = not value
+            if _PATH_FLAGS[flag]:
+                out += [flag, _PATH_FLAGS[flag]]
+            continue
+        out.append(arg)
+    return out
 
 
 def emit(record: dict, path: str | None = None) -> None:
