@@ -169,13 +169,17 @@ def register_from(params, src, ref, init, cfg: config_lib.RPMNetConfig = config_
 
 @functools.lru_cache(maxsize=None)
 def jitted(cfg: config_lib.RPMNetConfig = config_lib.RPMNetConfig(), num_iters: int | None = None,
-           field: str | None = None):
+           field=None, from_starts: bool = False):
     """``jax.jit(register)`` for one config and iteration count, compiled once per process:
-    ``jitted(cfg, n)(params, src, ref) -> Registration``. With ``field`` (e.g. ``"transforms"``) the compiled
-    function returns only that output, so the per-iteration match matrices are never materialised."""
-    fn = functools.partial(register, cfg=cfg, num_iters=num_iters)
+    ``jitted(cfg, n)(params, src, ref) -> Registration``; with ``from_starts`` it is :func:`register_from`:
+    ``jitted(cfg, n, from_starts=True)(params, src, ref, init)``. With ``field`` (a field name, e.g.
+    ``"transforms"``, or a module-level function of the :class:`Registration`) the compiled function returns
+    only that, so what it leaves out (the per-iteration match matrices) is never materialised."""
+    fn = functools.partial(register_from if from_starts else register, cfg=cfg, num_iters=num_iters)
     if field is None:
         return jax.jit(fn)
+    if callable(field):
+        return jax.jit(lambda *args: field(fn(*args)))
     if field not in Registration._fields:
-        raise ValueError(f"field must be one of {Registration._fields}, got {field!r}")
-    return jax.jit(lambda params, src, ref: getattr(fn(params, src, ref), field))
+        raise ValueError(f"field must be one of {Registration._fields} or a function, got {field!r}")
+    return jax.jit(lambda *args: getattr(fn(*args), field))

@@ -146,9 +146,27 @@ def test_pipeline_results_are_scored_by_nearest_neighbours_and_deterministic(ran
     assert set(a.timings) == {"prepare", "network", "global", "refine", "score", "total"}
     c = rpmnet_jax.align(src * 3.0, ref, src_n, None, max_correspondence_distance=0.5, **kw)
     assert c.max_correspondence_distance == 0.5
-    for bad in (dict(init="everywhere"), dict(refine="gicp"), dict(max_correspondence_distance=-1.0), dict(top_k=0)):
+    for bad in (dict(init="everywhere"), dict(refine="gicp"), dict(max_correspondence_distance=-1.0),
+                dict(global_options=dict(top_k=3)), dict(refine_options=None)):
         with pytest.raises(ValueError):
             rpmnet_jax.align(src, ref, **{**kw, **bad})
+
+
+@pytest.mark.parametrize("bad", [dict(top_k=0), dict(hypotheses="dodecahedral"), dict(points=2), dict(iters=0),
+                                 dict(polish_points=0), dict(auto_fitness=1.5)])
+def test_global_options_are_checked_when_made(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        rpmnet_jax.GlobalOptions(**bad)
+
+
+@pytest.mark.parametrize("bad", [dict(points=2), dict(scales=()), dict(scales=(2.0, 0.0)), dict(max_iterations=0),
+                                 dict(tolerance=0.0)])
+def test_refine_options_are_checked_when_made(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        rpmnet_jax.RefineOptions(**bad)
+    assert rpmnet_jax.RefineOptions().icp_kwargs() == {}
+    assert rpmnet_jax.RefineOptions(scales=[2, 1], max_iterations=9).icp_kwargs() == dict(scales=(2.0, 1.0),
+                                                                                         max_iterations=9)
 
 
 def _write(tmp_path, name, pts, nrm=None):

@@ -32,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax import config as config_lib
+from rpmnet_jax.ops import se3
 from rpmnet_jax.scans import alignment, normals as normals_lib, pair_edges, pose_graph, prepare, scoring
 from rpmnet_jax.scans.pair_edges import Edge
 from rpmnet_jax.weights import loading
@@ -114,7 +115,7 @@ def _largest_component(num_scans, edges):
 
 
 def _merged(scans, poses, placed, voxel):
-    points = np.concatenate([scans[s].points @ poses[s, :3, :3].T + poses[s, :3, 3] for s in placed])
+    points = np.concatenate([se3.apply(poses[s], scans[s].points) for s in placed])
     points, _ = prepare.voxel_downsample(points, None, voxel)
     return points, normals_lib.estimate_normals(points)
 

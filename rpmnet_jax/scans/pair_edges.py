@@ -13,6 +13,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rpmnet_jax import registration
+from rpmnet_jax.ops import se3
 from rpmnet_jax.scans import prepare, refine as refine_lib, scoring
 
 
@@ -62,7 +63,7 @@ def icp_edge(scans, i: int, j: int, start: np.ndarray, max_distance: float, rng:
     ``start (4, 4)`` (gates ``scales × max_distance``), measured on all of scan ``i`` (the plane fit within
     the finest gate)."""
     src, ref = scans[i], scans[j]
-    pick = rng.choice(len(src.points), num_points, replace=False) if len(src.points) > num_points else slice(None)
+    pick = prepare.sample_indices(rng, len(src.points), num_points)
     r = refine_lib.point_to_plane_icp(src.points[pick], ref.points, ref.normals, start, max_distance, scales=scales,
                                       max_iterations=max_iterations, ref_tree=ref.tree)
     return measure(scans, i, j, r.transform, max_distance, stage, min(1.0, min(scales)) * max_distance)
@@ -101,7 +102,7 @@ def predicted_overlap(scans, i: int, j: int, transform: np.ndarray, max_distance
 
     def share(a, b, t):
         pts = scans[a].points[:: max(1, len(scans[a].points) // num_points)]
-        dist, _ = scans[b].tree.query(pts @ t[:3, :3].T + t[:3, 3], distance_upper_bound=max_distance)
+        dist, _ = scans[b].tree.query(se3.apply(t, pts), distance_upper_bound=max_distance)
         return float(np.mean(np.isfinite(dist)))
 
     return max(share(i, j, transform), share(j, i, np.linalg.inv(transform)))

@@ -75,12 +75,10 @@ def voxel_downsample(points: np.ndarray, normals: np.ndarray | None, voxel_size:
     return out, out_normals
 
 
-def _downsample(rng: np.random.Generator, n_total: int, n: int, method: str) -> np.ndarray:
-    if n_total <= n:
-        return np.arange(n_total)
-    if method == "random":
-        return np.sort(rng.choice(n_total, n, replace=False))
-    raise ValueError(f"unknown sampling {method!r}")
+def sample_indices(rng: np.random.Generator, n_total: int, n: int) -> np.ndarray:
+    """Sorted indices ``(min(n, n_total),)`` of ``n`` rows drawn without replacement (all rows when
+    ``n_total <= n``)."""
+    return np.arange(n_total) if n_total <= n else np.sort(rng.choice(n_total, n, replace=False))
 
 
 def _fps(points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -143,7 +141,7 @@ def prepare_pair(src_points, ref_points, src_normals=None, ref_normals=None, *, 
     src_u, ref_u = (src - c_src) / scale, (ref - c_ref) / scale
     rng = np.random.default_rng(seed)
     pick = (lambda x: _fps(x, min(num_points, len(x)), rng)) if sampling == "fps" else (
-        lambda x: _downsample(rng, len(x), num_points, "random"))
+        lambda x: sample_indices(rng, len(x), num_points))
     i_src, i_ref = pick(src_u), pick(ref_u)
     src_s, ref_s = src_u[i_src], ref_u[i_ref]
     n_src = src_n[i_src] if src_n is not None else normals_lib.estimate_normals(src_s)

@@ -8,6 +8,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from rpmnet_jax.ops import se3
+
 
 class Score(NamedTuple):
     fitness: float  # fraction of source points with a reference point within max_distance
@@ -35,7 +37,7 @@ def evaluate_registration(src, ref, transform, max_distance: float, ref_tree: cK
         raise ValueError(f"transform must be (4, 4) or (3, 4), got {t.shape}")
     if not max_distance > 0:
         raise ValueError(f"max_distance must be > 0, got {max_distance}")
-    moved = src @ t[:3, :3].T + t[:3, 3]
+    moved = se3.apply(t, src)
     tree = ref_tree if ref_tree is not None else cKDTree(ref)
     dist, idx = tree.query(moved, k=1, distance_upper_bound=max_distance)
     inlier = np.isfinite(dist) & (dist <= max_distance)
@@ -67,7 +69,7 @@ def plane_fit(src, ref, ref_normals, transform, correspondences) -> PlaneFit:
         return PlaneFit(np.zeros((6, 6)), np.zeros(0))
     p = src[corr[:, 0]]
     n = np.asarray(ref_normals, np.float64)[corr[:, 1]]
-    residuals = np.sum((p @ t[:3, :3].T + t[:3, 3] - ref[corr[:, 1]]) * n, axis=1)
+    residuals = np.sum((se3.apply(t, p) - ref[corr[:, 1]]) * n, axis=1)
     m = n @ t[:3, :3]  # R^T n, row by row
     jac = np.concatenate([np.cross(p, m), m], axis=1)
     extent = float(np.ptp(ref, axis=0).max()) or 1.0
