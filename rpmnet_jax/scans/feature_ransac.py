@@ -1,0 +1,106 @@
+"""Classical global hypotheses: FPFH correspondences and RANSAC over 3-point samples, verified in one batched,
+jitted call (Open3D's ``registration_ransac_based_on_feature_matching``, with its mutual filter, edge-length
+and distance checkers, made batch-parallel instead of sequential).
+
+Rotation-invariant features make these hypotheses independent of the starting orientation, which the
+network (trained on rotations of up to 45° per axis) is not; :mod:`rpmnet_jax.scans.alignment` refines them
+beside the network's answers and lets its selection score decide.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.spatial import cKDTree
+
+from rpmnet_jax.ops import procrustes, se3
+
+
+class Hypotheses(NamedTuple):
+    """Distinct RANSAC answers, best first."""
+
+    transforms: np.ndarray  # (H, 4, 4): map source onto reference
+    inliers: np.ndarray  # (H,) correspondences within the distance, of ``num_correspondences``
+    num_correspondences: int
+
+
+def mutual_correspondences(src_features: np.ndarray, ref_features: np.ndarray) -> np.ndarray:
+    """``(C, 2)`` (source, reference) index pairs that are each other's nearest neighbour in feature space;
+    all source → reference nearest pairs when fewer than 3 are mutual (as Open3D's mutual filter)."""
+    _, to_ref = cKDTree(ref_features).query(src_features)
+    _, to_src = cKDTree(src_features).query(ref_features)
+    src_idx = np.arange(len(src_features))
+    mutual = to_src[to_ref] == src_idx
+    keep = mutual if mutual.sum() >= 3 else np.ones_like(mutual)
+    return np.stack([src_idx[keep], to_ref[keep]], axis=1)
+
+
+def _bucket(n: int) -> int:
+    """Padded size for ``n`` correspondences (few distinct compiled shapes)."""
+    return max(64, 1 << int(np.ceil(np.log2(max(n, 1)))))
+
+
+@functools.partial(jax.jit, static_argnames=("edge_ratio",))
+def _score_samples(src_c, ref_c, valid, samples, max_distance, edge_ratio: float):
+    """Transforms ``(M, 3, 4)`` of 3-point samples ``(M, 3)`` of correspondences ``src_c, ref_c (C, 3)``
+    (``valid (C,)`` marks the unpadded ones) and their inlier counts ``(M,)``, -1 where a checker fails."""
+    a, b = src_c[samples], ref_c[samples]  # (M, 3, 3)
+    edges = lambda p: jnp.linalg.norm(p - jnp.roll(p, 1, axis=1), axis=-1)  # (M, 3)
+    ea, eb = edges(a), edges(b)
+    edge_ok = jnp.all((ea >= edge_ratio * eb) & (eb >= edge_ratio * ea), axis=-1)
+    t = procrustes.weighted_procrustes(a, b, jnp.ones(a.shape[:2], a.dtype))
+    moved = se3.apply(t, a)
+    dist_ok = jnp.all(jnp.linalg.norm(moved - b, axis=-1) <= max_distance, axis=-1)
+    all_moved = jnp.einsum("mij,cj->mci", t[:, :, :3], src_c) + t[:, None, :, 3]  # (M, C, 3)
+    close = jnp.sum((all_moved - ref_c[None]) ** 2, axis=-1) <= max_distance**2
+    inliers = jnp.sum(close & valid[None], axis=-1)
+    return t, jnp.where(edge_ok & dist_ok, inliers, -1)
+
+
+def ransac_hypotheses(src: np.ndarray, ref: np.ndarray, correspondences: np.ndarray, max_distance: float, *,
+                      samples: int = 8192, edge_ratio: float = 0.9, top_k: int = 4, min_angle_deg: float = 45.0,
+                      seed: int = 0, chunk: int = 4096) -> Hypotheses:
+    """The ``top_k`` best RANSAC transforms of ``src, ref (·, 3)`` from ``correspondences (C, 2)``, each at
+    least ``min_angle_deg`` from the better ones (a symmetric shape's flip survives beside the truth).
+
+    ``samples`` random 3-point samples are drawn (``seed``); a sample whose edge lengths disagree by more than
+    ``edge_ratio`` or whose points do not land within ``max_distance`` is rejected; the rest are ranked by
+    how many correspondences they bring within ``max_distance``.
+    """
+    c = len(correspondences)
+    if c < 3:
+        return Hypotheses(np.zeros((0, 4, 4)), np.zeros((0,), np.int64), c)
+    size = _bucket(c)
+    src_c = np.zeros((size, 3), np.float32)
+    ref_c = np.zeros((size, 3), np.float32)
+    src_c[:c] = src[correspondences[:, 0]]
+    ref_c[:c] = ref[correspondences[:, 1]]
+    valid = np.arange(size) < c
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, c, (samples, 3))  # (M, 3); samples that repeat a correspondence are dropped
+    transforms, scores = [], []
+    for start in range(0, len(draws), chunk):
+        part = draws[start:start + chunk]
+        if len(part) < chunk:  # one compiled shape
+            part = np.concatenate([part, np.repeat(part[:1], chunk - len(part), axis=0)])
+        t, s = _score_samples(src_c, ref_c, valid, part.astype(np.int32), np.float32(max_distance),
+                              edge_ratio=float(edge_ratio))
+        transforms.append(np.asarray(t, np.float64))
+        scores.append(np.asarray(s))
+    transforms = np.concatenate(transforms)[:len(draws)]
+    scores = np.concatenate(scores)[:len(draws)]
+    repeated = (draws[:, 0] == draws[:, 1]) | (draws[:, 1] == draws[:, 2]) | (draws[:, 0] == draws[:, 2])
+    scores = np.where(repeated, -1, scores)
+    picked: list[int] = []
+    for i in np.argsort(-scores, kind="stable"):
+        if scores[i] < 3 or len(picked) == top_k:
+            break
+        rots = transforms[picked, :, :3]
+        if all(se3.rotation_angle_deg(transforms[i, :, :3] @ r.T) >= min_angle_deg for r in rots):
+            picked.append(int(i))
+    out = np.stack([se3.to_homogeneous(transforms[i]) for i in picked]) if picked else np.zeros((0, 4, 4))
+    return Hypotheses(out, scores[picked].astype(np.int64), c)

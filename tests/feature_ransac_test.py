@@ -1,0 +1,36 @@
+import numpy as np
+
+from rpmnet_jax.scans import feature_ransac, fpfh
+
+from conftest import asymmetric_shape, rotation_about, rotation_error_deg
+
+
+def _pair(degrees, seed=0):
+    rng = np.random.default_rng(seed)
+    pts, nrm = asymmetric_shape(seed, 1500)
+    src_i, ref_i = rng.choice(len(pts), 700, replace=False), rng.choice(len(pts), 700, replace=False)
+    rot = rotation_about([0.3, -1.0, 0.6], degrees)
+    t = np.array([0.2, -0.1, 0.3])
+    src, src_n = pts[src_i] @ rot.T + t, nrm[src_i] @ rot.T  # the source is the reference moved by (rot, t)
+    return src, src_n, pts[ref_i], nrm[ref_i], rot.T, -rot.T @ t
+
+
+def test_ransac_finds_a_large_rotation_and_distinct_alternatives():
+    src, src_n, ref, ref_n, gt_rot, gt_t = _pair(170.0)
+    corr = feature_ransac.mutual_correspondences(fpfh.fpfh(src, src_n, 0.3, 128), fpfh.fpfh(ref, ref_n, 0.3, 128))
+    h = feature_ransac.ransac_hypotheses(src, ref, corr, 0.075, seed=0)
+    assert len(h.transforms) >= 2 and np.all(np.diff(h.inliers) <= 0)
+    assert rotation_error_deg(h.transforms[0, :3, :3], gt_rot) < 5.0
+    assert np.linalg.norm(h.transforms[0, :3, 3] - gt_t) < 0.05
+    for i in range(len(h.transforms)):
+        for j in range(i):
+            assert rotation_error_deg(h.transforms[i, :3, :3], h.transforms[j, :3, :3]) >= 45.0
+
+
+def test_ransac_is_deterministic_under_a_seed_and_empty_without_correspondences():
+    src, src_n, ref, ref_n, _, _ = _pair(60.0, seed=1)
+    corr = feature_ransac.mutual_correspondences(fpfh.fpfh(src, src_n, 0.3, 64), fpfh.fpfh(ref, ref_n, 0.3, 64))
+    a = feature_ransac.ransac_hypotheses(src, ref, corr, 0.075, seed=3)
+    b = feature_ransac.ransac_hypotheses(src, ref, corr, 0.075, seed=3)
+    np.testing.assert_array_equal(a.transforms, b.transforms)
+    assert len(feature_ransac.ransac_hypotheses(src, ref, corr[:2], 0.075).transforms) == 0

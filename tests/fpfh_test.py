@@ -1,0 +1,43 @@
+import numpy as np
+import pytest
+
+from rpmnet_jax.scans import fpfh
+
+from conftest import asymmetric_shape, rotation_about
+
+
+def _shape(n=600):
+    pts, nrm = asymmetric_shape(0, n)
+    return pts, nrm
+
+
+def test_fpfh_equals_open3d():
+    o3d = pytest.importorskip("open3d")
+    pts, nrm = _shape()
+    pc = o3d.geometry.PointCloud()
+    pc.points, pc.normals = o3d.utility.Vector3dVector(pts), o3d.utility.Vector3dVector(nrm)
+    theirs = np.asarray(o3d.pipelines.registration.compute_fpfh_feature(
+        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=0.3, max_nn=64)).data).T
+    np.testing.assert_allclose(fpfh.fpfh(pts, nrm, 0.3, 64), theirs, atol=1e-9)
+
+
+def test_fpfh_is_invariant_under_rigid_motion():
+    pts, nrm = _shape()
+    rot = rotation_about([1.0, 2.0, -0.5], 170.0)
+    moved = fpfh.fpfh(pts @ rot.T + [0.3, -2.0, 5.0], nrm @ rot.T, 0.3, 64)
+    still = fpfh.fpfh(pts, nrm, 0.3, 64)
+    # α = ±π lie in bins 0 and 10 (the wrap-around): rounding moves pairs at the branch cut between them
+    np.testing.assert_allclose(moved[:, 1:10], still[:, 1:10], atol=1e-6)
+    np.testing.assert_allclose(moved[:, 11:], still[:, 11:], atol=1e-6)
+    np.testing.assert_allclose(moved[:, 0] + moved[:, 10], still[:, 0] + still[:, 10], atol=1e-6)
+
+
+def test_pair_features_are_zero_for_coincident_points_and_bins_sum_to_100():
+    p = np.zeros((2, 3))
+    n = np.array([[0.0, 0, 1], [0, 1, 0]])
+    np.testing.assert_array_equal(fpfh.pair_features(p[0], n[0], p[1], n[1]), np.zeros(4))
+    pts, nrm = _shape(300)
+    idx, _, valid = fpfh.neighbours(pts, 0.3, 32)
+    hist = fpfh.spfh(pts, nrm, idx, valid).reshape(-1, 3, fpfh.BINS)
+    has = valid[:, 1:].any(axis=1)
+    np.testing.assert_allclose(hist[has].sum(axis=-1), 100.0)
