@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rpmnet_jax.ops import procrustes, se3
+from rpmnet_jax.scans import fpfh
 
 
 class Hypotheses(NamedTuple):
@@ -104,3 +105,12 @@ def ransac_hypotheses(src: np.ndarray, ref: np.ndarray, correspondences: np.ndar
             picked.append(int(i))
     out = np.stack([se3.to_homogeneous(transforms[i]) for i in picked]) if picked else np.zeros((0, 4, 4))
     return Hypotheses(out, scores[picked].astype(np.int64), c)
+
+
+def from_clouds(src, src_normals, ref, ref_normals, max_distance: float = 0.075, radius: float = 0.3,
+                max_nn: int = 128, seed: int = 0, **kwargs) -> Hypotheses:
+    """:func:`ransac_hypotheses` from FPFH correspondences of ``src, ref (·, 3)`` with normals; defaults are
+    Open3D's tutorial recipe on unit-sphere clouds (FPFH radius 0.3, 128 neighbours; distance 0.075)."""
+    corr = mutual_correspondences(fpfh.fpfh(src, src_normals, radius, max_nn),
+                                  fpfh.fpfh(ref, ref_normals, radius, max_nn))
+    return ransac_hypotheses(src, ref, corr, max_distance, seed=seed, **kwargs)
