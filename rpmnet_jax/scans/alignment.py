@@ -33,7 +33,8 @@ from scipy.spatial import cKDTree
 from rpmnet_jax import config as config_lib
 from rpmnet_jax import registration
 from rpmnet_jax.ops import se3
-from rpmnet_jax.scans import global_search, options as options_lib, prepare, refine as refine_lib, scoring
+from rpmnet_jax.scans import feature_ransac, global_search, options as options_lib, prepare, refine as refine_lib
+from rpmnet_jax.scans import scoring
 from rpmnet_jax.scans import normals as normals_lib
 from rpmnet_jax.weights import loading
 
@@ -52,15 +53,15 @@ class Alignment(NamedTuple):
     converged: bool  # the refinement met its tolerance (True for refine="none")
     num_iterations: int  # refinement iterations (0 for refine="none")
     max_correspondence_distance: float  # the threshold used, caller's units
-    init: str  # the start that won: "local" or "global"
-    timings: dict  # seconds per stage: prepare, network, global, refine, score, total
+    init: str  # the start that won: "local", "classical" or "global"
+    timings: dict  # seconds per stage: prepare, network, classical, global, refine, score, total
 
 
 class Start(NamedTuple):
     """A network answer to refine, in the normalised frame."""
 
-    init: str  # "local" or "global"
-    network_transforms: np.ndarray  # (I, 3, 4): the network's iterates from this start
+    init: str  # "local", "classical" or "global"
+    network_transforms: np.ndarray  # (I, 3, 4): the network's iterates from this start (a classical one: itself)
     confidence: float  # mean inlier mass of the network's last match matrix
     transform: np.ndarray  # (3, 4) or (4, 4): where the refinement starts
 
@@ -70,8 +71,8 @@ class Candidate(NamedTuple):
 
     transform: np.ndarray  # (4, 4): the refined answer, maps source onto reference
     score: tuple  # :func:`_selection_score`: (tight fitness, fitness, -RMSE)
-    init: str  # "local" or "global"
-    network_transforms: np.ndarray  # (I, 3, 4): the network's iterates from this start
+    init: str  # "local", "classical" or "global"
+    network_transforms: np.ndarray  # (I, 3, 4): the network's iterates from this start (a classical one: itself)
     confidence: float
     converged: bool  # the refinement met its tolerance (True for refine="none")
     num_iterations: int  # refinement iterations (0 for refine="none")
@@ -149,7 +150,7 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     """
     options_lib.check(init, refine, num_iters, max_correspondence_distance, refine_options, global_options)
     t_start = time.perf_counter()
-    timings = {"prepare": 0.0, "network": 0.0, "global": 0.0, "refine": 0.0, "score": 0.0}
+    timings = {"prepare": 0.0, "network": 0.0, "classical": 0.0, "global": 0.0, "refine": 0.0, "score": 0.0}
     pair = prepare.prepare_pair(src_points, ref_points, src_normals, ref_normals, num_points=num_points,
                                 sampling=sampling, seed=seed, reestimate_normals=reestimate_normals,
                                 centering=centering)
@@ -170,10 +171,16 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
         starts.append(Start("local", net_ts, float(confidence(perm)), net_ts[-1]))
         timings["network"] = time.perf_counter() - t0
 
+    if init != "local" and global_options.classical:
+        t0 = time.perf_counter()
+        starts += _classical_starts(pair, global_options.classical, seed)
+        timings["classical"] = time.perf_counter() - t0
+
     t0 = time.perf_counter()
     candidates = _refine(starts, dense, max_dist_unit, refine, refine_options)
     timings["refine"] += time.perf_counter() - t0
-    if init == "global" or (init == "auto" and candidates[0].score[1] < global_options.auto_fitness):
+    best_fitness = max((c.score[1] for c in candidates), default=0.0)
+    if init == "global" or (init == "auto" and best_fitness < global_options.auto_fitness):
         t0 = time.perf_counter()
         screened = _screen_hypotheses(params, pair, dense, cfg, global_options, max_dist_unit, seed)
         if refine != "icp":  # the network's answers as they are
@@ -220,6 +227,16 @@ def _screen_hypotheses(params, pair: prepare.PreparedPair, dense: _DenseClouds, 
         scores.append(_selection_score(dense._replace(src=few), r.transform, max_dist_unit))
     order = sorted(range(len(nets)), key=lambda h: scores[h], reverse=True)[:opts.top_k]
     return [Start("global", nets[h], float(confidences[h]), polished[h]) for h in order]
+
+
+def _classical_starts(pair: prepare.PreparedPair, count: int, seed: int) -> list:
+    """Up to ``count`` FPFH + RANSAC hypotheses on the network's samples (unit-sphere frame, Open3D's recipe)
+    as :class:`Start` s; each hypothesis is its own single iterate, its confidence the share of feature
+    correspondences it brings within the distance."""
+    src, ref = np.asarray(pair.src6[0], np.float64), np.asarray(pair.ref6[0], np.float64)
+    hyp = feature_ransac.from_clouds(src[:, :3], src[:, 3:], ref[:, :3], ref[:, 3:], seed=seed, top_k=count)
+    share = hyp.inliers / max(hyp.num_correspondences, 1)
+    return [Start("classical", t[None, :3], float(c), t) for t, c in zip(hyp.transforms, share)]
 
 
 def _transforms_and_confidence(reg: registration.Registration):

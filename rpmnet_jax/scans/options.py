@@ -48,12 +48,14 @@ class RefineOptions:
 
 @dataclasses.dataclass(frozen=True)
 class GlobalOptions:
-    """The global search (``init="global"``, or ``"auto"`` when the local answer's fitness is below
-    ``auto_fitness``).
+    """The orientation-free starts of ``init="auto"`` and ``"global"``.
 
-    ``hypotheses``: ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened with ``iters``
-    network iterations on ``points`` per cloud and a short ICP on ``polish_points`` source points; the
-    ``top_k`` best are refined.
+    ``classical``: how many distinct FPFH + RANSAC hypotheses (:mod:`rpmnet_jax.scans.feature_ransac`,
+    rotation-invariant, at least 45° apart) join the candidates of ``auto`` and ``global`` (0: none).
+    The network's global search (``init="global"``, or ``"auto"`` when no candidate reaches a fitness of
+    ``auto_fitness``): ``hypotheses``, ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened
+    with ``iters`` network iterations on ``points`` per cloud and a short ICP on ``polish_points`` source
+    points; the ``top_k`` best are refined.
     """
 
     hypotheses: str = "octahedral"
@@ -62,6 +64,7 @@ class GlobalOptions:
     iters: int = 2
     polish_points: int = 1000
     auto_fitness: float = 0.6
+    classical: int = 4
 
     def __post_init__(self):
         if self.hypotheses not in global_search.HYPOTHESIS_SETS:
@@ -76,6 +79,8 @@ class GlobalOptions:
             raise ValueError(f"GlobalOptions.iters must be >= 1, got {self.iters}")
         if not 0.0 <= self.auto_fitness <= 1.0:
             raise ValueError(f"GlobalOptions.auto_fitness must be in [0, 1], got {self.auto_fitness}")
+        if self.classical < 0:
+            raise ValueError(f"GlobalOptions.classical must be >= 0, got {self.classical}")
 
 
 def check(init: str, refine: str, num_iters: int, max_correspondence_distance: float | None,
