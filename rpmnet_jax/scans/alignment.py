@@ -229,6 +229,9 @@ def _screen_hypotheses(params, pair: prepare.PreparedPair, dense: _DenseClouds, 
     return [Start("global", nets[h], float(confidences[h]), polished[h]) for h in order]
 
 
+CLASSICAL_KEEP = 0.3  # classical hypotheses with fewer inliers than this share of the best one's are not refined
+
+
 def _classical_starts(pair: prepare.PreparedPair, count: int, seed: int) -> list:
     """Up to ``count`` FPFH + RANSAC hypotheses on the network's samples (unit-sphere frame, Open3D's recipe)
     as :class:`Start` s; each hypothesis is its own single iterate, its confidence the share of feature
@@ -236,7 +239,8 @@ def _classical_starts(pair: prepare.PreparedPair, count: int, seed: int) -> list
     src, ref = np.asarray(pair.src6[0], np.float64), np.asarray(pair.ref6[0], np.float64)
     hyp = feature_ransac.from_clouds(src[:, :3], src[:, 3:], ref[:, :3], ref[:, 3:], seed=seed, top_k=count)
     share = hyp.inliers / max(hyp.num_correspondences, 1)
-    return [Start("classical", t[None, :3], float(c), t) for t, c in zip(hyp.transforms, share)]
+    keep = hyp.inliers >= CLASSICAL_KEEP * hyp.inliers.max(initial=0)  # a flip stays; stray samples do not
+    return [Start("classical", t[None, :3], float(c), t) for t, c, k in zip(hyp.transforms, share, keep) if k]
 
 
 def _transforms_and_confidence(reg: registration.Registration):
