@@ -1,9 +1,10 @@
-"""Robust point-to-plane ICP: convergence, robustness to partiality and outliers, no harm to good answers."""
+"""Robust point-to-plane ICP: convergence, robustness to partiality and outliers, no harm to good answers,
+precision on real shapes at least Open3D's."""
 
 import numpy as np
 import pytest
 
-from conftest import asymmetric_shape, rotation_about, rotation_error_deg
+from conftest import DATA, asymmetric_shape, require, rotation_about, rotation_error_deg
 from rpmnet_jax.scans import refine
 
 
@@ -62,9 +63,69 @@ def test_never_makes_a_correct_answer_worse_than_noise(seed):
     assert np.linalg.norm(res.transform[:3, 3] - gt[:3, 3]) < 0.01
 
 
+def test_symmetric_planes_ignore_the_sign_of_source_normals():
+    rng = np.random.default_rng(7)
+    pts, nrm = asymmetric_shape(2, 4000)
+    gt = _motion(8.0, [0.3, -1.0, 0.2], [0.03, 0.0, -0.02])
+    src = (pts[::2] + rng.normal(scale=0.005, size=(2000, 3)) - gt[:3, 3]) @ gt[:3, :3]
+    src_n = nrm[::2] @ gt[:3, :3]
+    signs = rng.choice([-1.0, 1.0], size=(2000, 1))
+    a = refine.point_to_plane_icp(src, pts[1::2], nrm[1::2], np.eye(4), 0.05, src_normals=src_n)
+    b = refine.point_to_plane_icp(src, pts[1::2], -nrm[1::2], np.eye(4), 0.05, src_normals=src_n * signs)
+    np.testing.assert_allclose(a.transform, b.transform, atol=1e-9)
+    assert rotation_error_deg(a.transform[:3, :3], gt[:3, :3]) < 0.1
+
+
+def test_tukey_weights():
+    r = np.array([0.0, 0.25, -0.5, 0.99, 1.0, -3.0])
+    np.testing.assert_allclose(refine.tukey_weights(r, 1.0), [1.0, (1 - 0.0625) ** 2, 0.5625, (1 - 0.9801) ** 2, 0, 0])
+    np.testing.assert_allclose(refine.tukey_weights(2 * r, 2.0), refine.tukey_weights(r, 1.0))
+
+
+# Open3D's median rotation error (°) on the pairs and starts of the test below (measured, open3d 0.20.0): the
+# bound where Open3D does not import. Ours there: 0.39 / 0.47; the previous refinement (Tukey weights of the
+# point distance, one reference point per source point, no source normals): 0.47 / 0.67.
+OPEN3D_MEDIAN_DEG = {"modelnet40_real_subset": 0.455, "real_meshes_train": 0.547}
+
+
+@pytest.mark.parametrize("name", sorted(OPEN3D_MEDIAN_DEG))
+def test_ends_at_least_as_close_as_open3d_on_real_shapes(name):
+    """On 24 real partial pairs (70% crops, noise 0.01; the protocol's test-file pairs, evenly spread) from
+    starts 5° and 0.02 off the truth, the median rotation error of our refinement (the shapes' normals on both
+    sides: symmetric planes) is at most that of Open3D's robust point-to-plane ICP (Tukey 0.05, gate 0.05,
+    60 iterations: the classical recipe's) from the same starts on the same clouds: computed here when
+    Open3D imports, else ``OPEN3D_MEDIAN_DEG``."""
+    from rpmnet_jax import data
+    from rpmnet_jax.evaluation import baselines
+
+    ds = data.ModelNet40(require(DATA / name, f"the {name} data set"), "val", "partial")
+    rng = np.random.default_rng(0)
+    have_open3d = baselines.open3d_available() is None
+    ours, theirs = [], []
+    for i in np.linspace(0, len(ds) - 1, 24).astype(int):
+        s = ds[int(i)]
+        src, ref = np.asarray(s["points_src"], np.float64), np.asarray(s["points_ref"], np.float64)
+        gt = np.vstack([s["transform_gt"], [0.0, 0.0, 0.0, 1.0]])
+        start = _motion(5.0, rng.normal(size=3), 0.02 * _unit(rng.normal(size=3))) @ gt
+        res = refine.point_to_plane_icp(src[:, :3], ref[:, :3], ref[:, 3:], start, 0.05, src_normals=src[:, 3:])
+        ours.append(rotation_error_deg(res.transform[:3, :3], gt[:3, :3]))
+        if have_open3d:
+            theirs.append(rotation_error_deg(baselines.robust_icp(src, ref, start)[:3, :3], gt[:3, :3]))
+    bound = float(np.median(theirs)) if have_open3d else OPEN3D_MEDIAN_DEG[name]
+    assert np.median(ours) <= bound, (np.median(ours), bound)
+
+
+def _unit(v):
+    return np.asarray(v, np.float64) / np.linalg.norm(v)
+
+
 def test_bad_arguments():
     pts = np.random.default_rng(0).uniform(-1, 1, (50, 3))
     with pytest.raises(ValueError, match="max_distance"):
         refine.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.0)
     with pytest.raises(ValueError, match="max_iterations"):
         refine.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.1, max_iterations=0)
+    with pytest.raises(ValueError, match="neighbours"):
+        refine.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.1, neighbours=0)
+    with pytest.raises(ValueError, match="src_normals"):
+        refine.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.1, src_normals=pts[:10])

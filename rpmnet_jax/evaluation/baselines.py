@@ -111,6 +111,17 @@ def _icp_point_to_plane(ps, pr, init, threshold: float, tukey_k: float, max_iter
         reg.ICPConvergenceCriteria(max_iteration=max_iterations)).transformation)
 
 
+ICP_THRESHOLD, ICP_TUKEY_K, ICP_ITERATIONS = 0.05, 0.05, 60  # the recipe's ICP on unit-sphere clouds
+
+
+def robust_icp(src, ref, init, threshold: float = ICP_THRESHOLD, tukey_k: float = ICP_TUKEY_K,
+               max_iterations: int = ICP_ITERATIONS) -> np.ndarray:
+    """The recipe's refinement alone: Tukey point-to-plane ICP (Open3D) of ``src (N, 6)`` onto ``ref (M, 6)``
+    (xyz + normals) from ``init (4, 4)`` → ``(4, 4)``."""
+    return _icp_point_to_plane(_o3d_cloud(np.asarray(src)), _o3d_cloud(np.asarray(ref)),
+                               np.asarray(init, np.float64), threshold, tukey_k, max_iterations)
+
+
 def fgr(src, ref, radius: float = 0.3, max_nn: int = 128, max_correspondence: float = 0.01):
     """Fast Global Registration on FPFH features (Open3D); ``(B, ·, 6)`` → ``(B, 3, 4)``."""
     out = []
@@ -121,8 +132,8 @@ def fgr(src, ref, radius: float = 0.3, max_nn: int = 128, max_correspondence: fl
 
 
 def global_then_icp(src, ref, start: str, radius: float = 0.3, max_nn: int = 128, ransac_distance: float = 0.075,
-                    fgr_distance: float = 0.01, icp_threshold: float = 0.05, tukey_k: float = 0.05,
-                    icp_iterations: int = 60):
+                    fgr_distance: float = 0.01, icp_threshold: float = ICP_THRESHOLD, tukey_k: float = ICP_TUKEY_K,
+                    icp_iterations: int = ICP_ITERATIONS):
     """Open3D's classical recipe for unit-sphere clouds: a global start from FPFH features (``start`` is
     ``"ransac"`` or ``"fgr"``), then robust point-to-plane ICP. ``o3d.utility.random.seed(0)`` before each
     pair. ``(B, ·, 6)`` (xyz + normals) → ``(B, 3, 4)``."""

@@ -1,12 +1,20 @@
 """Robust point-to-plane ICP: makes a good initial transform precise on the caller's dense clouds.
 
-Each iteration pairs every moved source point with its nearest reference point (k-d tree), keeps the pairs
-closer than a gate, weights them with Tukey's biweight of their distance (pairs near the gate count little,
-pairs beyond it not at all: source points without a partner — partial overlap, outliers — cannot pull the
-answer), and solves the linearised weighted point-to-plane problem (6×6). The gate shrinks in stages
-(``scales × max_distance``, coarse to fine) so that an answer a few degrees off is first pulled in and then
-refined on close pairs only. A stage ends when the update is below ``tolerance`` (rotation in radians,
-translation relative to the cloud radius) or after ``max_iterations`` for that stage.
+Each iteration pairs every moved source point with its ``neighbours`` nearest reference points (k-d tree)
+closer than a gate, and solves the linearised weighted point-to-plane problem (6×6). The plane of a pair is
+the reference point's tangent plane or, when the source has normals, the symmetric one (normal: the mean of
+both normal lines, as in symmetric ICP, Rusinkiewicz 2019). Each pair is weighted by Tukey's biweight of its
+plane residual at scale ``max_distance`` (as Open3D's ``TukeyLoss``): pairs off the surface — partial
+overlap, outliers — count little or not at all. The gate shrinks in stages (``scales × max_distance``,
+coarse to fine) so that an answer a few degrees off is first pulled in and then refined on close pairs
+only. A stage ends when the update is below ``tolerance`` (rotation in radians, translation relative to
+the cloud radius) or after ``max_iterations`` for that stage.
+
+Why (measured against Open3D's Tukey point-to-plane ICP, 0.05 / k 0.05 / 60 iterations, from the same
+starts on the real ModelNet40 subset and real_meshes_train test files, ``experiments.refine_ab``): Tukey
+weights of the point-*distance* threshold the tangential offset between samples of two noisy clouds, not
+the plane residual, and discard most pairs at the finest gate; several neighbours average the reference's
+noise; the symmetric plane cancels the first-order error of a tangent plane taken at the wrong sample.
 """
 
 from __future__ import annotations
@@ -25,38 +33,70 @@ class Refinement(NamedTuple):
     num_iterations: int  # over all stages
 
 
-def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, scales=(4.0, 2.0, 1.0),
-                       max_iterations: int = 30, tolerance: float = 1e-5, ref_tree: cKDTree | None = None
-                       ) -> Refinement:
+GATE_MEDIANS = 3.0  # a coarse stage's gate: this many median nearest-neighbour distances (within its bounds)
+
+
+def _pairs(tree: cKDTree, moved: np.ndarray, max_distance: float, scale: float, neighbours: int
+           ) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(source rows (P,), reference rows (P,), gate)``: the ``neighbours`` nearest reference points within
+    the gate of each moved source point. The gate is ``scale × max_distance`` in a fine stage (``scale <=
+    1``); in a coarse one ``GATE_MEDIANS`` median nearest-neighbour distances, between ``max_distance`` and
+    ``scale × max_distance`` (wide while the clouds lie apart, the finest gate once they lie on each other)."""
+    ceiling = scale * max_distance
+    dist, idx = tree.query(moved, k=neighbours, distance_upper_bound=ceiling)
+    dist, idx = dist.reshape(len(moved), -1), idx.reshape(len(moved), -1)
+    gate = ceiling if scale <= 1.0 else float(np.clip(GATE_MEDIANS * np.median(dist[:, 0]), max_distance, ceiling))
+    rows, slot = np.nonzero(dist <= gate)
+    return rows, idx[rows, slot], gate
+
+
+def tukey_weights(residuals: np.ndarray, scale: float) -> np.ndarray:
+    """Tukey's biweight ``(1 - (r / scale)²)²`` of ``residuals (P,)``, 0 beyond ``scale``."""
+    u = np.minimum(np.abs(residuals) / scale, 1.0)
+    return (1.0 - u * u) ** 2
+
+
+def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_normals=None,
+                       scales=(4.0, 1.0), max_iterations: int = 30, tolerance: float = 1e-5, neighbours: int = 3,
+                       ref_tree: cKDTree | None = None) -> Refinement:
     """Refines ``init (4, 4)`` moving ``src (N, 3)`` onto ``ref (M, 3)`` with unit ``ref_normals (M, 3)``.
 
-    ``max_distance``: the finest gate (same units as the clouds); ``scales``: the gates of the stages as
-    multiples of it; ``max_iterations``: per stage.
+    ``src_normals (N, 3)``: unit normals of the source (either sign), for the symmetric plane; ``None``:
+    the reference's tangent planes. ``max_distance``: the finest gate and the scale of the robust weights
+    (same units as the clouds); ``scales``: the gates of the stages as multiples of it;
+    ``max_iterations``: per stage; ``neighbours``: reference points paired with each source point.
     """
     src = np.asarray(src, np.float64)
     ref = np.asarray(ref, np.float64)
     normals = np.asarray(ref_normals, np.float64)
+    src_n = None if src_normals is None else np.asarray(src_normals, np.float64)
     if not max_distance > 0:
         raise ValueError(f"max_distance must be > 0, got {max_distance}")
     if max_iterations < 1:
         raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
+    if neighbours < 1:
+        raise ValueError(f"neighbours must be >= 1, got {neighbours}")
+    if src_n is not None and src_n.shape != src.shape:
+        raise ValueError(f"src_normals {src_n.shape} do not match src {src.shape}")
     tree = ref_tree if ref_tree is not None else cKDTree(ref)
     radius = max(float(np.max(np.linalg.norm(src - src.mean(0), axis=1))), 1e-12)
     transform = np.array(init, np.float64)
     total, converged = 0, True
     for scale in scales:
-        gate = scale * max_distance
         stage_done = False
         for _ in range(max_iterations):
             total += 1
-            moved = src @ transform[:3, :3].T + transform[:3, 3]
-            dist, idx = tree.query(moved, k=1, distance_upper_bound=gate)
-            ok = np.isfinite(dist)
-            if ok.sum() < 6:
+            moved = se3.apply(transform, src)
+            rows, cols, gate = _pairs(tree, moved, max_distance, scale, neighbours)
+            if len(rows) < 6:
                 break  # too few pairs at this gate: keep the transform, try the next stage
-            p, q, n = moved[ok], ref[idx[ok]], normals[idx[ok]]
-            w = (1.0 - (dist[ok] / gate) ** 2) ** 2
+            p, q, n = moved[rows], ref[cols], normals[cols]
+            if src_n is not None:  # the symmetric plane: both normal lines, signs made to agree
+                m = se3.rotate(transform, src_n[rows])
+                n = n + m * np.where(np.sum(m * n, axis=1) < 0, -1.0, 1.0)[:, None]
+                n /= np.linalg.norm(n, axis=1, keepdims=True)  # >= sqrt(2): the lines agree in sign
             r = np.sum((p - q) * n, axis=1)
+            w = tukey_weights(r, gate)
             jac = np.concatenate([np.cross(p, n), n], axis=1)  # d r / d (omega, v)
             a = jac.T @ (jac * w[:, None])
             b = -jac.T @ (w * r)
