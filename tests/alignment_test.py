@@ -143,7 +143,7 @@ def test_pipeline_results_are_scored_by_nearest_neighbours_and_deterministic(ran
     assert a.fitness == pytest.approx(within.mean(), abs=1e-12)
     assert a.inlier_rmse == pytest.approx(np.sqrt(np.mean(nearest[within] ** 2)), rel=1e-9)
     np.testing.assert_array_equal(a.correspondences, np.stack([np.nonzero(within)[0], d.argmin(1)[within]], 1))
-    assert set(a.timings) == {"prepare", "network", "global", "refine", "score", "total"}
+    assert set(a.timings) == {"prepare", "network", "classical", "global", "refine", "score", "total"}
     c = rpmnet_jax.align(src * 3.0, ref, src_n, None, max_correspondence_distance=0.5, **kw)
     assert c.max_correspondence_distance == 0.5
     for bad in (dict(init="everywhere"), dict(refine="gicp"), dict(max_correspondence_distance=-1.0),
