@@ -169,6 +169,94 @@ def test_refine_options_are_checked_when_made(bad):
                                                                                          max_iterations=9)
 
 
+def test_nan_rows_keep_the_callers_row_numbers(random_weights):
+    """NaN/inf rows are dropped for the registration, but ``correspondences`` index the caller's arrays and
+    ``aligned`` has every source row (NaN rows stay NaN): the same answer as on the pre-cleaned clouds."""
+    src, src_n = _shape(seed=12, n=700)
+    ref, _ = _shape(seed=13, n=650)
+    ref = ref @ Rotation.from_euler("z", 15, degrees=True).as_matrix().T
+    bad_src, bad_ref = [3, 50, 400], [0, 649]
+    src_nan, ref_nan = src.copy(), ref.copy()
+    src_nan[bad_src] = np.nan
+    ref_nan[bad_ref, 1] = np.inf
+    keep_s, keep_r = np.setdiff1d(np.arange(700), bad_src), np.setdiff1d(np.arange(650), bad_ref)
+    kw = dict(checkpoint=random_weights, num_points=256, num_iters=2, init="local")
+    with pytest.warns(UserWarning, match="dropped"):
+        a = rpmnet_jax.align(src_nan, ref_nan, src_n, None, **kw)
+    b = rpmnet_jax.align(src[keep_s], ref[keep_r], src_n[keep_s], None, **kw)
+    np.testing.assert_array_equal(a.transform, b.transform)
+    assert a.aligned.shape == (700, 3) and np.isnan(a.aligned[bad_src]).all()
+    np.testing.assert_array_equal(a.aligned[keep_s], b.aligned)
+    assert len(a.correspondences) > 10
+    np.testing.assert_array_equal(a.correspondences, np.stack([keep_s[b.correspondences[:, 0]],
+                                                               keep_r[b.correspondences[:, 1]]], axis=1))
+    pairs = np.linalg.norm(a.aligned[a.correspondences[:, 0]] - ref_nan[a.correspondences[:, 1]], axis=1)
+    assert np.all(pairs <= a.max_correspondence_distance)
+
+
+@pytest.mark.parametrize("cloud", ["source", "reference"])
+def test_a_stray_far_point_does_not_change_the_answer(random_weights, cloud):
+    """One point 100 radii away, inside the arrays: the same transform (the default pipeline: with random
+    weights the local answer is poor, so the global search runs too), the same correspondence distance,
+    and the stray is scored as a source point without a partner."""
+    src, src_n = _shape(seed=14, n=600)
+    ref, ref_n = _shape(seed=15, n=600)
+    ref = ref @ Rotation.from_euler("x", 40, degrees=True).as_matrix().T + 0.2
+    kw = dict(checkpoint=random_weights, num_iters=2)
+    clean = rpmnet_jax.align(src, ref, src_n, ref_n, **kw)
+    assert clean.init == "global"
+    pts, nrm = (src, src_n) if cloud == "source" else (ref, ref_n)
+    stray = pts.mean(0) + 100 * np.linalg.norm(pts - pts.mean(0), axis=1).max() * np.array([0.6, 0.0, 0.8])
+    pts, nrm = np.insert(pts, 123, stray, axis=0), np.insert(nrm, 123, [1.0, 0.0, 0.0], axis=0)
+    dirty = (rpmnet_jax.align(pts, ref, nrm, ref_n, **kw) if cloud == "source"
+             else rpmnet_jax.align(src, pts, src_n, nrm, **kw))
+    np.testing.assert_array_equal(dirty.transform, clean.transform)
+    assert dirty.max_correspondence_distance == clean.max_correspondence_distance
+    shifted = clean.correspondences.copy()
+    shifted[:, 0 if cloud == "source" else 1] += shifted[:, 0 if cloud == "source" else 1] >= 123
+    np.testing.assert_array_equal(dirty.correspondences, shifted)
+    if cloud == "source":
+        assert dirty.fitness == pytest.approx(clean.fitness * 600 / 601, abs=1e-12)
+
+
+def test_deterministic_under_a_seed_and_the_global_screen_follows_it(random_weights):
+    from rpmnet_jax.scans import alignment, prepare
+
+    src, src_n = _shape(seed=16, n=500)
+    ref, _ = _shape(seed=17, n=500)
+    kw = dict(checkpoint=random_weights, num_points=256, num_iters=2, init="global", seed=4)
+    a, b = rpmnet_jax.align(src, ref, src_n, None, **kw), rpmnet_jax.align(src, ref, src_n, None, **kw)
+    np.testing.assert_array_equal(a.transform, b.transform)
+    np.testing.assert_array_equal(a.correspondences, b.correspondences)
+    pair = prepare.prepare_pair(src, ref, src_n, None, num_points=256)
+    dense = alignment._dense_clouds(pair, 5000, 0)
+    params = loading.load_params(random_weights)
+    opts = rpmnet_jax.GlobalOptions(points=64)  # fewer than the 256 prepared: the seed picks which
+    screen = lambda seed: np.stack([s.network_transforms for s in alignment._screen_hypotheses(
+        params, pair, dense, rpmnet_jax.RPMNetConfig(), opts, 0.05, seed)])
+    first = screen(0)
+    np.testing.assert_array_equal(screen(0), first)
+    assert not np.allclose(screen(1), first)
+
+
+def test_plot_without_matplotlib_fails_before_anything_runs(tmp_path, capsys, monkeypatch, random_weights):
+    """A plain install has no matplotlib: --plot is refused up front (one line naming the extra), nothing is
+    computed, printed or written."""
+    import sys
+    from rpmnet_jax.scans import alignment
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib raises ImportError
+    monkeypatch.setattr(alignment, "align", lambda *a, **k: pytest.fail("align ran"))
+    src = _write(tmp_path, "src.npy", *_shape(n=100))
+    out_t, png = tmp_path / "T.txt", tmp_path / "p.png"
+    code, out, err = _run_cli([src, src, "--checkpoint", random_weights, "--out-transform", str(out_t), "--plot",
+                               str(png)], capsys)
+    assert code == 2 and out == ""
+    assert err.startswith("rpmnet-register: error:") and len(err.strip().splitlines()) == 1, err
+    assert "matplotlib" in err and "rpmnet_jax[viz]" in err and "Traceback" not in err
+    assert not out_t.exists() and not png.exists()
+
+
 def _write(tmp_path, name, pts, nrm=None):
     path = str(tmp_path / name)
     cloud_io.write_cloud(path, pts, nrm)

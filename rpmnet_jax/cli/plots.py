@@ -5,6 +5,15 @@ from __future__ import annotations
 import numpy as np
 
 
+def check_available() -> None:
+    """Raises ``ValueError`` (one line naming the extra) when matplotlib is not installed: call it before
+    anything is computed."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise ValueError("--plot needs matplotlib, which is not installed: pip install 'rpmnet_jax[viz]'") from None
+
+
 def _pyplot():
     import matplotlib
     matplotlib.use("Agg")
@@ -13,11 +22,15 @@ def _pyplot():
 
 
 def plot_alignment(path: str, src, ref, aligned, max_points: int = 3000) -> None:
-    """Headless 3-D scatter of source (red), reference (blue) and aligned source (green)."""
+    """Headless 3-D scatter of source (red), reference (blue) and aligned source (green); rows with NaN/inf
+    are left out."""
     plt = _pyplot()
 
     rng = np.random.default_rng(0)
-    sub = lambda x: x[rng.choice(len(x), min(len(x), max_points), replace=False)]
+
+    def sub(x):
+        x = np.asarray(x)[np.all(np.isfinite(x), axis=1)]
+        return x[rng.choice(len(x), min(len(x), max_points), replace=False)]
     fig = plt.figure(figsize=(10, 5))
     for i, (title, clouds) in enumerate([("before", [(src, "tab:red", "source"), (ref, "tab:blue", "reference")]),
                                          ("after", [(aligned, "tab:green", "aligned source"),

@@ -44,11 +44,14 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    from rpmnet_jax.cli import plots
     from rpmnet_jax.scans import alignment as align_lib
     from rpmnet_jax.scans import cloud_io
     from rpmnet_jax.weights import loading
 
     try:
+        if args.plot:
+            plots.check_available()
         runtime.check_outputs(args.out_transform, args.out_aligned, args.plot)
         if args.out_aligned:
             cloud_io._ext(args.out_aligned)
@@ -88,13 +91,10 @@ def main(argv=None) -> int:
                                  fitness=result.fitness, inlier_rmse=result.inlier_rmse, start=result.init,
                                  max_correspondence_distance=result.max_correspondence_distance,
                                  timings=result.timings)
-    if args.out_aligned:
+    if args.out_aligned:  # row for row as the source file (NaN rows stay NaN)
         aligned_n = None if src_n is None else src_n @ result.transform[:3, :3].T
-        if aligned_n is not None and len(aligned_n) != len(result.aligned):
-            aligned_n = None  # rows with NaNs were dropped
         cloud_io.write_cloud(args.out_aligned, result.aligned, aligned_n)
     if args.plot:
-        from rpmnet_jax.cli import plots
         plots.plot_alignment(args.plot, src, ref, result.aligned)
     return 0
 

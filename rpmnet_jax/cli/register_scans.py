@@ -76,6 +76,9 @@ def main(argv=None) -> int:
 
     t0 = time.perf_counter()
     try:
+        if args.plot:
+            from rpmnet_jax.cli import plots
+            plots.check_available()
         runtime.check_outputs(args.out_poses, args.out_merged, args.plot)
         if args.out_merged:
             cloud_io._ext(args.out_merged)

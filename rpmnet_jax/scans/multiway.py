@@ -70,7 +70,7 @@ def _prepare_scans(clouds, normals, voxel_size):
     normals = [None] * len(clouds) if normals is None else list(normals)
     if len(normals) != len(clouds):
         raise ValueError(f"got {len(normals)} normal arrays for {len(clouds)} scans")
-    cleaned = [prepare.clean_cloud(f"scan {i}", c, n) for i, (c, n) in enumerate(zip(clouds, normals))]
+    cleaned = [prepare.clean_cloud(f"scan {i}", c, n)[:2] for i, (c, n) in enumerate(zip(clouds, normals))]
     radii = [np.max(np.linalg.norm(p - p.mean(axis=0), axis=1)) for p, _ in cleaned]
     voxel = float(voxel_size) if voxel_size is not None else DEFAULT_RELATIVE_VOXEL * float(np.median(radii))
     scans = []

@@ -1,0 +1,58 @@
+"""Normal estimation: PCA lines, signs consistent over the surface, outward or toward a viewpoint."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from rpmnet_jax.data import synthetic
+from rpmnet_jax.scans import normals
+
+
+def _shape(label, n=3000, seed=0):
+    pts = synthetic.sample_shape(np.random.default_rng(seed), label, n)
+    return pts[:, :3].astype(np.float64), pts[:, 3:].astype(np.float64)
+
+
+@pytest.mark.parametrize("label", [3, 8, 13, 28, 38])  # tori: the centroid lies outside the surface
+def test_non_convex_shapes_get_outward_normals(label):
+    """Propagated signs match the analytic outward normals on shapes where "away from the centroid" is wrong
+    for 9-40% of the points (measured over 3 seeds at 1,000 and 3,000 points: 100% against 60-91%)."""
+    pts, truth = _shape(label)
+    est = normals.estimate_normals(pts)
+    np.testing.assert_allclose(np.linalg.norm(est, axis=1), 1.0, atol=1e-12)
+    assert np.mean(np.sum(est * truth, axis=1) > 0) > 0.99
+    away_from_centroid = np.sum(truth * (pts - pts.mean(0)), axis=1) > 0
+    assert np.mean(away_from_centroid) < 0.95  # the shape is one where that rule is wrong somewhere
+
+
+def test_neighbours_agree_and_unoriented_lines_are_the_same():
+    pts, _ = _shape(8)
+    est = normals.estimate_normals(pts)
+    _, idx = cKDTree(pts).query(pts, 8)
+    assert np.mean(np.sum(est[:, None] * est[idx[:, 1:]], axis=2) < -0.5) < 0.002
+    lines = normals.estimate_normals(pts, orient=False)
+    np.testing.assert_allclose(np.abs(np.sum(lines * est, axis=1)), 1.0, atol=1e-9)
+
+
+def test_a_concave_view_faces_its_viewpoint():
+    """The inside of a bowl seen from a sensor above it: away from the centroid is wrong for every point;
+    toward the viewpoint is right for every point."""
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    bowl = d[d[:, 2] < -0.2]  # lower cap of the unit sphere, seen from above
+    viewpoint = np.array([0.0, 0.0, 3.0])
+    inward = -bowl  # the inner surface's normals point to the sphere's centre, toward the sensor
+    est = normals.estimate_normals(bowl, viewpoint=viewpoint)
+    assert np.mean(np.sum(est * inward, axis=1) > 0) > 0.99
+    assert np.mean(np.sum(normals.estimate_normals(bowl) * inward, axis=1) > 0) < 0.01  # outward: the other way
+
+
+def test_each_separate_part_is_oriented():
+    """A sphere cut into two caps by a wide gap (two parts of the neighbour graph): both outward."""
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    caps = d[np.abs(d[:, 2]) > 0.6]
+    est = normals.estimate_normals(caps)
+    assert np.mean(np.sum(est * caps, axis=1) > 0) > 0.99

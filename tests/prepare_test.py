@@ -1,0 +1,73 @@
+"""Preparing clouds: kept rows, the robust centre and scale, estimated normals the same way in both clouds."""
+
+import numpy as np
+import pytest
+
+from rpmnet_jax.data import synthetic
+from rpmnet_jax.scans import prepare
+
+
+def _shape(seed=0, n=800, label=36):
+    pts = synthetic.sample_shape(np.random.default_rng(seed), label, n)
+    return pts[:, :3].astype(np.float64), pts[:, 3:].astype(np.float64)
+
+
+def test_clean_cloud_reports_the_kept_rows():
+    pts, nrm = _shape(n=50)
+    pts[[3, 17]] = np.nan
+    nrm[40] = np.inf
+    with pytest.warns(UserWarning, match="dropped 3 points"):
+        got, got_n, rows = prepare.clean_cloud("c", pts, nrm)
+    np.testing.assert_array_equal(rows, [i for i in range(50) if i not in (3, 17, 40)])
+    np.testing.assert_array_equal(got, pts[rows])
+    np.testing.assert_allclose(got_n, nrm[rows])
+
+
+def test_clean_clouds_keep_their_centroid_and_radius():
+    pts, _ = _shape()
+    centre, core = prepare.robust_centre(pts)
+    assert core.all()
+    np.testing.assert_array_equal(centre, pts.mean(axis=0))
+
+
+def test_stray_points_move_neither_centre_nor_scale():
+    pts, nrm = _shape()
+    ref, ref_n = _shape(seed=1)
+    radius = np.linalg.norm(pts - pts.mean(0), axis=1).max()
+    strays = pts.mean(0) + radius * np.array([[100.0, 0, 0], [0, -60.0, 0], [0, 0, 250.0]])
+    dirty = np.insert(pts, [10, 200, 500], strays, axis=0)
+    dirty_n = np.insert(nrm, [10, 200, 500], [[1.0, 0, 0]] * 3, axis=0)
+    clean = prepare.prepare_pair(pts, ref, nrm, ref_n, num_points=1024)
+    got = prepare.prepare_pair(dirty, ref, dirty_n, ref_n, num_points=1024)
+    assert np.count_nonzero(~got.src_core) == 3 and got.ref_core.all()
+    np.testing.assert_allclose(got.c_src, clean.c_src, rtol=0, atol=1e-15)
+    assert got.scale == clean.scale
+    np.testing.assert_array_equal(got.src6, clean.src6)  # the strays are not sampled for the network
+    assert np.max(np.abs(got.src6[0, :, :3])) <= 1.0
+    common = prepare.prepare_pair(dirty, ref, dirty_n, ref_n, num_points=1024, centering="common")
+    assert common.scale == prepare.prepare_pair(pts, ref, nrm, ref_n, num_points=1024, centering="common").scale
+
+
+def test_estimated_normals_face_the_same_way_in_both_clouds():
+    """Without normals, both clouds' network normals agree with the analytic outward ones; both clouds of a
+    pair seen from the origin (scans in a sensor's frame) face the origin."""
+    pts, truth = _shape(seed=2, n=1500, label=8)  # a torus: the centroid is not inside the surface
+    pair = prepare.prepare_pair(pts, pts[::-1] + 0.3, num_points=512, seed=1)
+    unit = (pts - pts.mean(0)) / pair.scale  # both clouds' points in the normalised frame
+    for cloud6 in (pair.src6[0], pair.ref6[0]):
+        xyz_u, n_est = cloud6[:, :3].astype(np.float64), cloud6[:, 3:].astype(np.float64)
+        nearest = np.argmin(np.linalg.norm(unit[None] - xyz_u[:, None], axis=2), axis=1)
+        assert np.mean(np.sum(n_est * truth[nearest], axis=1) > 0) > 0.98
+    # the inside of a bowl (a sphere's upper cap) seen from the origin below it, 5.6 radii away: toward the
+    # sensor, which is the opposite of away from the centroid for every point
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(4000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    cap = d[d[:, 2] > 0.2] + np.array([0.0, 0.0, 5.0])
+    pair = prepare.prepare_pair(cap, cap[::2], num_points=512)
+    for cloud6, centre in ((pair.src6[0], pair.c_src), (pair.ref6[0], pair.c_ref)):
+        xyz_u, n_est = cloud6[:, :3].astype(np.float64), cloud6[:, 3:].astype(np.float64)
+        toward_origin = -centre / pair.scale - xyz_u
+        assert np.mean(np.sum(n_est * toward_origin, axis=1) > 0) > 0.99
+        outward = xyz_u - xyz_u.mean(0)
+        assert np.mean(np.sum(n_est * outward, axis=1) > 0) < 0.05
