@@ -57,7 +57,10 @@ def test_global_init_recovers_large_rotations(degrees, axis):
     trans = np.array([0.3, -0.2, 0.1])
     src, src_n = pts[:3000], nrm[:3000]
     ref, ref_n = pts[1000:] @ rot.T + trans, nrm[1000:] @ rot.T  # rot maps src onto ref
-    result = rpmnet_jax.align(src, ref, src_n, ref_n, init="global")
+    network_only = rpmnet_jax.GlobalOptions(classical=0)  # the network's rotation hypotheses alone
+    result = rpmnet_jax.align(src, ref, src_n, ref_n, init="global", global_options=network_only)
     assert rotation_error_deg(result.transform[:3, :3], rot) < 1.0
     assert np.linalg.norm(result.transform[:3, 3] - trans) < 0.02
     assert result.init == "global" and result.fitness > 0.6 and result.converged
+    with_classical = rpmnet_jax.align(src, ref, src_n, ref_n, init="global")
+    assert rotation_error_deg(with_classical.transform[:3, :3], rot) < 1.0
