@@ -81,8 +81,27 @@ def test_symmetric_planes_ignore_the_sign_of_source_normals():
 
 def test_tukey_weights():
     r = np.array([0.0, 0.25, -0.5, 0.99, 1.0, -3.0])
-    np.testing.assert_allclose(refine.tukey_weights(r, 1.0), [1.0, (1 - 0.0625) ** 2, 0.5625, (1 - 0.9801) ** 2, 0, 0])
+    expected = [1.0, (1 - 0.0625) ** 2, 0.5625, (1 - 0.9801) ** 2, 0.0, 0.0]
+    np.testing.assert_allclose(refine.tukey_weights(r, 1.0), expected)
     np.testing.assert_allclose(refine.tukey_weights(2 * r, 2.0), refine.tukey_weights(r, 1.0))
+
+
+def test_gates_follow_the_clouds_within_their_bounds():
+    """3 median nearest-neighbour distances: a coarse gate from the finest gate up to its scale; a fine gate
+    narrower than its scale only for clouds much denser and cleaner than the correspondence distance."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(0)
+    pts, _ = asymmetric_shape(4, 8000)
+    tree = cKDTree(pts[1::2])
+    dense = pts[::2]  # 3 median nearest-neighbour distances: 0.037
+    noisy = dense + rng.normal(scale=0.05, size=dense.shape)  # about 0.12
+    assert refine._pairs(tree, dense, 0.2, 1.0, 3)[2] == pytest.approx(0.05)  # the floor: a quarter
+    assert refine._pairs(tree, dense, 0.1, 1.0, 3)[2] == pytest.approx(0.037, abs=1e-3)  # in between
+    assert refine._pairs(tree, noisy, 0.1, 1.0, 3)[2] == pytest.approx(0.1)  # the stage's gate
+    assert refine._pairs(tree, dense, 0.05, 4.0, 1)[2] == pytest.approx(0.05)  # coarse: down to the finest
+    assert refine._pairs(tree, dense + [0.5, 0.0, 0.0], 0.05, 4.0, 1)[2] == pytest.approx(0.2)  # apart
+    assert 0.1 < refine._pairs(tree, noisy, 0.02, 8.0, 1)[2] < 0.14  # in between (0.02 .. 0.16)
 
 
 # Open3D's median rotation error (°) on the pairs and starts of the test below (measured, open3d 0.20.0): the
