@@ -8,14 +8,14 @@ Layers (each imports only the ones above it): ``ops`` (pure jax.numpy) → ``nn`
 from rpmnet_jax.config import RPMNetConfig
 from rpmnet_jax.nn.pointnets import init_params
 from rpmnet_jax.registration import Registration, register
-from rpmnet_jax.scans.alignment import Alignment, align
+from rpmnet_jax.scans.alignment import Alignment, Answer, align
 from rpmnet_jax.scans.multiway import ScanAlignment, align_scans
 from rpmnet_jax.scans.options import GlobalOptions, RefineOptions
 from rpmnet_jax.scans.scoring import evaluate_registration
 from rpmnet_jax.weights import convert
 from rpmnet_jax.weights.loading import load_default_params, load_params
 
-__all__ = ["Alignment", "GlobalOptions", "RPMNetConfig", "RefineOptions", "Registration", "ScanAlignment", "align",
+__all__ = ["Alignment", "Answer", "GlobalOptions", "RPMNetConfig", "RefineOptions", "Registration", "ScanAlignment", "align",
            "align_scans", "convert", "evaluate_registration", "init_params", "load_default_params", "load_params",
            "register"]
 __version__ = "0.1.0"

@@ -22,6 +22,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="orbax training dir, .npz or official .pth (default: the shipped model)")
     p.add_argument("--out-transform", default=None, help="write the 4x4 transform (.txt or .json)")
     p.add_argument("--out-aligned", default=None, help="write the aligned source (format from the extension)")
+    p.add_argument("--out-candidates", default=None,
+                   help="write the distinct answers, best first, with their scores and the information matrix (.json)")
     p.add_argument("--plot", default=None, help="PNG with source, reference and aligned source in 3-D")
     p.add_argument("--num-points", type=int, default=1024, help="points per cloud fed to the model (default 1024)")
     p.add_argument("--iters", type=int, default=5, help="registration iterations (default 5)")
@@ -47,12 +49,15 @@ def main(argv=None) -> int:
     from rpmnet_jax.cli import plots
     from rpmnet_jax.scans import alignment as align_lib
     from rpmnet_jax.scans import cloud_io
+    from rpmnet_jax.ops import se3
     from rpmnet_jax.weights import loading
 
     try:
         if args.plot:
             plots.check_available()
-        runtime.check_outputs(args.out_transform, args.out_aligned, args.plot)
+        runtime.check_outputs(args.out_transform, args.out_aligned, args.plot, args.out_candidates)
+        if args.out_candidates and not args.out_candidates.lower().endswith(".json"):
+            raise ValueError(f"--out-candidates must name a .json file, got {args.out_candidates}")
         if args.out_aligned:
             cloud_io._ext(args.out_aligned)
         src, src_n = cloud_io.read_cloud(args.src)
@@ -86,6 +91,16 @@ def main(argv=None) -> int:
         print(f"rpmnet-register: warning: low fitness {result.fitness:.3f}: only this share of the source has a "
               "reference point within the correspondence distance; the answer is likely wrong (try --init global, "
               "or a larger --max-correspondence-distance if the clouds are sparse or noisy)", file=sys.stderr)
+    if result.ambiguous:
+        second = result.candidates[1]
+        angle = float(se3.rotation_angle_deg(second.transform[:3, :3] @ result.transform[:3, :3].T))
+        print(f"rpmnet-register: warning: ambiguous: another answer {angle:.0f} deg away scores "
+              f"{second.score / result.candidates[0].score:.2f} of the best ({len(result.candidates)} distinct "
+              "answers); the shape may fit itself in several poses (symmetric), so the answer may be any of them"
+              f"{'' if args.out_candidates else ' (--out-candidates writes them)'}", file=sys.stderr)
+    if args.out_candidates:
+        cloud_io.write_candidates(args.out_candidates, result.candidates, result.information,
+                                  ambiguous=result.ambiguous)
     if args.out_transform:
         cloud_io.write_transform(args.out_transform, result.transform, confidence=result.confidence,
                                  fitness=result.fitness, inlier_rmse=result.inlier_rmse, start=result.init,

@@ -14,7 +14,12 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    reference points, random); the :class:`Candidate` with the best :func:`_selection_score` wins;
    ``refine="none"`` returns the network's answer as it is (the paper's method);
 4. score: fitness, inlier RMSE and correspondences of the answer on the full clouds, as Open3D's
-   ``evaluate_registration`` (:mod:`rpmnet_jax.scans.scoring`).
+   ``evaluate_registration`` (:mod:`rpmnet_jax.scans.scoring`), and the point-to-plane ``information``
+   (6×6) of its fit (:meth:`Alignment.covariance` inverts it);
+5. say what is uncertain: ``candidates`` lists the distinct refined answers (rotations more than
+   ``AMBIGUITY_DEG`` apart), best first, with their scores; ``ambiguous`` is set when the second reaches
+   ``AMBIGUITY_SHARE`` of the best's score: the shape fits itself in more than one pose (a vase turned about
+   its axis, a box flipped), and the answer may be any of them.
 
 ``max_correspondence_distance`` (caller's units) is the inlier threshold of the score and the finest ICP
 gate; by default 5% of the clouds' common radius (the largest distance of a non-stray point from its cloud's
@@ -56,6 +61,28 @@ class Alignment(NamedTuple):
     max_correspondence_distance: float  # the threshold used, caller's units
     init: str  # the start that won: "local", "classical" or "global"
     timings: dict  # seconds per stage: prepare, network, classical, global, refine, score, total
+    candidates: tuple  # the distinct refined answers (:class:`Answer`, > AMBIGUITY_DEG apart), best first
+    ambiguous: bool  # another distinct answer scores within AMBIGUITY_SHARE of the best (a symmetric shape)
+    information: np.ndarray  # (6, 6): point-to-plane information of ``transform`` (see :meth:`covariance`)
+
+    def covariance(self) -> np.ndarray:
+        """``(6, 6)`` covariance of the right perturbation ``ξ = (ω, v)`` of ``transform · Exp(ξ)`` (rotation
+        in radians first, translation in the caller's units): the inverse of ``information``, i.e. the
+        Gauss-Newton covariance of the final point-to-plane fit with independent residuals of the measured
+        variance. Optimistic: neighbouring residuals are correlated and the fit's bias is not in it. Raises
+        ``numpy.linalg.LinAlgError`` when the fit leaves a direction free (a plane, a sphere, a surface of
+        revolution slides along itself: its information is singular)."""
+        return np.linalg.inv(self.information)
+
+
+class Answer(NamedTuple):
+    """One distinct refined answer of :attr:`Alignment.candidates`."""
+
+    transform: np.ndarray  # (4, 4), caller's units
+    score: float  # share of the (dense-sampled) source within SELECT_FRACTION × the distance: what ranks
+    fitness: float  # the same share within the full distance
+    inlier_rmse: float  # RMS distance of those pairs, caller's units
+    init: str  # the start it came from: "local", "classical" or "global"
 
 
 class Start(NamedTuple):
@@ -199,10 +226,15 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
         candidates += _refine(screened, dense, max_dist_unit, refine, refine_options)
         timings["refine"] += time.perf_counter() - t0
 
-    best = max(candidates, key=lambda c: c.score)  # the first of equals: local before global
-    transform = pair.to_callers_units(best.transform[:3])
+    distinct = _distinct(sorted(candidates, key=lambda c: c.score, reverse=True))  # stable: local first
+    best = distinct[0]
+    answers = tuple(Answer(pair.to_callers_units(c.transform[:3]), float(c.score[0]), float(c.score[1]),
+                           -float(c.score[2]) * pair.scale, c.init) for c in distinct)
+    ambiguous = len(distinct) > 1 and distinct[1].score[0] >= AMBIGUITY_SHARE * best.score[0] > 0
+    transform = answers[0].transform
     t0 = time.perf_counter()
     score = scoring.evaluate_registration(pair.src, pair.ref, transform, max_dist)
+    information = _information(pair, transform, score.correspondences)
     timings["score"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     aligned = se3.apply(transform, np.asarray(src_points, np.float64))  # every row of the caller's
@@ -210,7 +242,37 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     return Alignment(transform, aligned, pair.to_callers_units(best.network_transforms), best.confidence,
                      (pair.src6.shape[1], pair.ref6.shape[1]), score.fitness, score.inlier_rmse,
                      rows, best.converged, best.num_iterations, float(max_dist), best.init,
-                     timings)
+                     timings, answers, bool(ambiguous), information)
+
+
+AMBIGUITY_DEG = 10.0  # candidates whose rotations lie closer than this are one answer (the better one kept)
+AMBIGUITY_SHARE = 0.8  # ambiguous: a distinct answer's score reaches this share of the best one's
+# (experiments.ambiguity, any orientation, real ModelNet40 subset: on its 9 bottles, bowls, cones and cups it flags
+# 5 of the 6 answers > 5 deg off and none of the others; on 60 pairs of its test file, none; the highest second
+# share there, 0.79, is an airplane's 180 deg flip of a partial crop)
+
+
+def _distinct(ranked: list) -> list:
+    """The :class:`Candidate` s of ``ranked`` (best first) whose rotation lies more than ``AMBIGUITY_DEG``
+    from every better one's."""
+    kept = []
+    for c in ranked:
+        if all(se3.rotation_angle_deg(c.transform[:3, :3] @ k.transform[:3, :3].T) > AMBIGUITY_DEG for k in kept):
+            kept.append(c)
+    return kept
+
+
+def _information(pair: prepare.PreparedPair, transform: np.ndarray, correspondences: np.ndarray) -> np.ndarray:
+    """Point-to-plane information ``(6, 6)`` of ``transform`` over the inlier ``correspondences (n, 2)`` of the
+    full clouds (:func:`rpmnet_jax.scans.scoring.plane_fit`; the reference's normals at the paired points,
+    estimated from the full reference where the caller gave none)."""
+    ref_rows = np.unique(correspondences[:, 1])
+    if pair.ref_normals is not None:
+        normals = pair.ref_normals
+    else:
+        normals = np.zeros_like(pair.ref)
+        normals[ref_rows] = normals_lib.normals_at(pair.ref, ref_rows)
+    return scoring.plane_fit(pair.src, pair.ref, normals, transform, correspondences).information
 
 
 def _screen_hypotheses(params, pair: prepare.PreparedPair, dense: _DenseClouds, cfg,

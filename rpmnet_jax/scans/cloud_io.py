@@ -164,6 +164,16 @@ def write_transform(path: str, transform: np.ndarray, **extra) -> None:
         np.savetxt(path, transform, fmt="%.17g")
 
 
+def write_candidates(path: str, candidates, information: np.ndarray, **extra) -> None:
+    """The distinct answers of an alignment (:class:`rpmnet_jax.scans.alignment.Answer`, best first) and the
+    information matrix of the best, as ``.json`` (float64 exact)."""
+    rows = [{"transform": np.asarray(c.transform, np.float64).tolist(), "score": c.score, "fitness": c.fitness,
+             "inlier_rmse": c.inlier_rmse, "start": c.init} for c in candidates]
+    with open(path, "w") as f:
+        json.dump({"candidates": rows, "information": np.asarray(information, np.float64).tolist(), **extra},
+                  f, indent=2)
+
+
 def read_transform(path: str) -> np.ndarray:
     if path.lower().endswith(".json"):
         with open(path) as f:

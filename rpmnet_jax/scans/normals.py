@@ -26,12 +26,7 @@ def estimate_normals(points: np.ndarray, k: int = 16, viewpoint: np.ndarray | No
     n = len(points)
     k = max(3, min(k, n))
     _, idx = cKDTree(points).query(points, k=k)
-    nbrs = points[idx]  # (N, k, 3)
-    centred = nbrs - nbrs.mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", centred, centred)
-    _, vecs = np.linalg.eigh(cov)  # ascending eigenvalues
-    normals = vecs[:, :, 0]
-    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = _pca_normals(points, idx)
     if not orient:
         return normals
     signs, labels = _consistent_signs(normals, idx)
@@ -41,6 +36,25 @@ def estimate_normals(points: np.ndarray, k: int = 16, viewpoint: np.ndarray | No
     flip = np.bincount(labels, votes) < 0  # per part: most normals face the wrong way
     normals[flip[labels]] *= -1
     return normals
+
+
+def normals_at(points: np.ndarray, rows: np.ndarray, k: int = 16, tree: cKDTree | None = None) -> np.ndarray:
+    """Unoriented unit normals ``(R, 3)`` of ``points[rows]`` from their ``k`` nearest neighbours among all
+    ``points (N, 3)`` (as :func:`estimate_normals` with ``orient=False``, for a few rows of a large cloud)."""
+    points = np.asarray(points, np.float64)
+    tree = tree if tree is not None else cKDTree(points)
+    _, idx = tree.query(points[np.asarray(rows, np.int64)], k=max(3, min(k, len(points))))
+    return _pca_normals(points, idx)
+
+
+def _pca_normals(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The direction of least spread of each neighbourhood ``points[idx] (R, k, 3)`` → ``(R, 3)``, unit."""
+    nbrs = points[idx]  # (R, k, 3)
+    centred = nbrs - nbrs.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", centred, centred)
+    _, vecs = np.linalg.eigh(cov)  # ascending eigenvalues
+    normals = vecs[:, :, 0]
+    return normals / np.linalg.norm(normals, axis=1, keepdims=True)
 
 
 def _graph(n: int, idx: np.ndarray, weights: np.ndarray) -> sparse.csr_matrix:
