@@ -41,3 +41,12 @@ def test_auto_falls_back_to_the_network_global_search(pairs):
 def test_classical_hypotheses_are_deterministic_under_a_seed(pairs):
     a, b = _align(pairs[1], seed=3), _align(pairs[1], seed=3)
     np.testing.assert_array_equal(a.transform, b.transform)
+
+
+def test_classical_start_runs_no_network(pairs):
+    """``init="classical"``: the FPFH + RANSAC hypotheses alone, refined (the ablation's classical side)."""
+    a = _align(pairs[0], init="classical")
+    assert a.timings["network"] == 0 and a.timings["global"] == 0 and a.init == "classical"
+    assert rotation_error_deg(a.transform[:3, :3], pairs[0]["transform_gt"][:, :3]) < 5.0
+    with pytest.raises(ValueError, match="classical"):
+        _align(pairs[0], init="classical", global_options=rpmnet_jax.GlobalOptions(classical=0))

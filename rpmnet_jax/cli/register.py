@@ -32,9 +32,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--centering", choices=("separate", "common"), default="separate",
                    help="centre each cloud on its own centroid (default) or both on their joint centroid")
     p.add_argument("--estimate-normals", action="store_true", help="re-estimate normals even if the files have them")
-    p.add_argument("--init", choices=("auto", "local", "global"), default="auto",
-                   help="network start: local (identity), global (rotation hypotheses covering every orientation), "
-                        "auto (local, global when its fitness is low; default)")
+    p.add_argument("--init", choices=("auto", "local", "global", "classical"), default="auto",
+                   help="starts: auto (the network from the identity plus FPFH + RANSAC hypotheses, the network's "
+                        "global search when no answer fits well; default), local (the network from the identity), "
+                        "global (the network from rotations covering every orientation, plus the hypotheses), "
+                        "classical (the hypotheses alone, no network)")
     p.add_argument("--refine", choices=("icp", "none"), default="icp",
                    help="robust point-to-plane ICP on denser samples (default), or none (the raw network)")
     p.add_argument("--max-correspondence-distance", type=float, default=None,

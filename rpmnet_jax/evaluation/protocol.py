@@ -13,15 +13,20 @@ import numpy as np
 from rpmnet_jax import data, registration
 from rpmnet_jax.evaluation import baselines
 from rpmnet_jax.scans import alignment
+from rpmnet_jax.scans.options import GlobalOptions
 from rpmnet_jax.data import loader
 from rpmnet_jax import metrics
 from rpmnet_jax import config as config_lib
 
-METHODS = ("rpmnet", "rpmnet_icp", "rpmnet_auto", "rpmnet_global", "icp", "fgr", "ransac_icp", "fgr_icp", "rpm",
-           "identity")
-# the registration pipeline of :func:`rpmnet_jax.align` with these options
+METHODS = ("rpmnet", "rpmnet_icp", "rpmnet_auto", "rpmnet_global", "network_icp", "classical_icp", "icp", "fgr",
+           "ransac_icp", "fgr_icp", "rpm", "identity")
+# the registration pipeline of :func:`rpmnet_jax.align` with these options; network_icp and classical_icp are the
+# ablation of its candidate sources: the network's alone (its global search, no classical hypotheses) and the
+# classical hypotheses alone (no network)
 PIPELINES = {"rpmnet_icp": dict(init="local", refine="icp"), "rpmnet_auto": dict(init="auto", refine="icp"),
-             "rpmnet_global": dict(init="global", refine="icp")}
+             "rpmnet_global": dict(init="global", refine="icp"),
+             "network_icp": dict(init="global", refine="icp", global_options=GlobalOptions(classical=0)),
+             "classical_icp": dict(init="classical", refine="icp")}
 CSV_COLUMNS = ("idx", "label", "r_mse", "r_mae", "t_mse", "t_mae", "err_r_deg", "err_t", "chamfer_dist")
 
 
@@ -46,6 +51,7 @@ def method_fn(name: str, params=None, cfg: config_lib.RPMNetConfig | None = None
 
     ``rpmnet`` is the network alone (the paper); ``rpmnet_icp``, ``rpmnet_auto`` and ``rpmnet_global`` are
     :func:`rpmnet_jax.align`'s pipeline with a local, automatic or global start and ICP refinement;
+    ``network_icp`` / ``classical_icp`` the same with only the network's or only the classical candidates;
     ``ransac_icp`` and ``fgr_icp`` are Open3D's classical recipe (FPFH + RANSAC or FGR, then robust
     point-to-plane ICP; :func:`baselines.global_then_icp`).
     """

@@ -7,8 +7,10 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
 2. start: ``init="local"`` runs the network once from the identity; ``init="global"`` runs it from the
    rotation hypotheses of :mod:`rpmnet_jax.scans.global_search` in one batched call, polishes each answer
    with a short ICP and keeps the ``top_k`` best (:class:`~rpmnet_jax.scans.options.GlobalOptions`);
-   ``init="auto"`` (default) is local, and global only when the refined local answer's fitness is below
-   ``GlobalOptions.auto_fitness``;
+   ``init="auto"`` (default) is local plus up to ``GlobalOptions.classical`` FPFH + RANSAC hypotheses
+   (:mod:`rpmnet_jax.scans.feature_ransac`), and global too when no refined answer's fitness reaches
+   ``GlobalOptions.auto_fitness``; ``init="classical"`` refines the classical hypotheses alone (no network;
+   the identity when they find none);
 3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.scans.refine`) from
    each start on denser samples of the caller's clouds (``RefineOptions.points`` source and 4× as many
    reference points, random); the :class:`Candidate` with the best :func:`_selection_score` wins;
@@ -59,7 +61,7 @@ class Alignment(NamedTuple):
     converged: bool  # the refinement met its tolerance (True for refine="none")
     num_iterations: int  # refinement iterations (0 for refine="none")
     max_correspondence_distance: float  # the threshold used, caller's units
-    init: str  # the start that won: "local", "classical" or "global"
+    init: str  # the start that won: "local", "classical", "global" (or "identity": init="classical" found none)
     timings: dict  # seconds per stage: prepare, network, classical, global, refine, score, total
     candidates: tuple  # the distinct refined answers (:class:`Answer`, > AMBIGUITY_DEG apart), best first
     ambiguous: bool  # another distinct answer scores within AMBIGUITY_SHARE of the best (a symmetric shape)
@@ -212,6 +214,8 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
         starts += _classical_starts(pair, global_options.classical, seed)
         timings["classical"] = time.perf_counter() - t0
 
+    if not starts:  # init="classical" and no hypothesis: the clouds as they lie
+        starts.append(Start("identity", np.eye(4)[None, :3], 0.0, np.eye(4)))
     t0 = time.perf_counter()
     candidates = _refine(starts, dense, max_dist_unit, refine, refine_options)
     timings["refine"] += time.perf_counter() - t0

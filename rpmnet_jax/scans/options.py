@@ -9,7 +9,7 @@ import dataclasses
 
 from rpmnet_jax.scans import global_search
 
-INITS = ("auto", "local", "global")
+INITS = ("auto", "local", "global", "classical")
 REFINES = ("icp", "none")
 
 
@@ -99,3 +99,5 @@ def check(init: str, refine: str, num_iters: int, max_correspondence_distance: f
         raise ValueError(f"refine_options must be a RefineOptions, got {type(refine_options).__name__}")
     if not isinstance(global_options, GlobalOptions):
         raise ValueError(f"global_options must be a GlobalOptions, got {type(global_options).__name__}")
+    if init == "classical" and global_options.classical < 1:
+        raise ValueError("init='classical' needs GlobalOptions.classical >= 1 (the hypotheses it refines)")
