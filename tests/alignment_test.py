@@ -126,6 +126,21 @@ def test_refine_none_returns_the_network_answer(random_weights):
     assert icp.num_iterations > 0 and not np.allclose(icp.transform, raw.transform, atol=1e-6)
 
 
+def test_an_unconverged_winner_is_refined_further(random_weights):
+    """Every candidate gets ``max_iterations`` per stage; the winner, if it stopped there, continues for
+    ``POLISH_FACTOR`` × as many, and ends closer (the random-weights network starts it far off)."""
+    from rpmnet_jax.scans import alignment
+    src, src_n = _shape(seed=6, n=900)
+    rot = Rotation.from_euler("xyz", [12, -8, 10], degrees=True).as_matrix()
+    kw = dict(checkpoint=random_weights, num_points=300, init="local")
+    short = rpmnet_jax.RefineOptions(scales=(1.0,), max_iterations=1)
+    a = rpmnet_jax.align(src, src @ rot.T, src_n, src_n @ rot.T, refine_options=short, **kw)
+    assert 1 < a.num_iterations <= 1 + alignment.POLISH_FACTOR
+    err = lambda t: np.degrees(np.arccos(np.clip((np.trace(t[:3, :3].T @ rot) - 1) / 2, -1, 1)))
+    start = a.transforms[-1]
+    assert err(a.transform) < err(start)
+
+
 def test_pipeline_results_are_scored_by_nearest_neighbours_and_deterministic(random_weights):
     src, src_n = _shape(seed=8, n=1500)
     other, _ = _shape(seed=9, n=1500)  # another sample of the same surface: not every point has a close partner

@@ -99,6 +99,8 @@ def test_gates_follow_the_clouds_within_their_bounds():
     assert refine._pairs(tree, dense, 0.2, 1.0, 3)[2] == pytest.approx(0.05)  # the floor: a quarter
     assert refine._pairs(tree, dense, 0.1, 1.0, 3)[2] == pytest.approx(0.037, abs=1e-3)  # in between
     assert refine._pairs(tree, noisy, 0.1, 1.0, 3)[2] == pytest.approx(0.1)  # the stage's gate
+    half_apart = np.concatenate([dense, dense + [5.0, 0.0, 0.0]])  # half the source overlaps nothing
+    assert refine._pairs(tree, half_apart, 0.1, 1.0, 3)[2] == pytest.approx(0.037, abs=1e-3)  # the overlap's
     assert refine._pairs(tree, dense, 0.05, 4.0, 1)[2] == pytest.approx(0.05)  # coarse: down to the finest
     assert refine._pairs(tree, dense + [0.5, 0.0, 0.0], 0.05, 4.0, 1)[2] == pytest.approx(0.2)  # apart
     assert 0.1 < refine._pairs(tree, noisy, 0.02, 8.0, 1)[2] < 0.14  # in between (0.02 .. 0.16)

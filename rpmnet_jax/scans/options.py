@@ -17,7 +17,7 @@ REFINES = ("icp", "none")
 class RefineOptions:
     """Robust point-to-plane ICP of every candidate (``refine="icp"``).
 
-    ``points``: source points sampled from the caller's cloud (the reference: ``4 × points``). ``scales``
+    ``points``: source points sampled from the caller's cloud (the reference: up to ``20 × points``). ``scales``
     (gates as multiples of the correspondence distance, coarse to fine), ``max_iterations`` (per stage) and
     ``tolerance`` (update size that ends a stage): ``None`` keeps
     :func:`rpmnet_jax.scans.refine.point_to_plane_icp`'s default.

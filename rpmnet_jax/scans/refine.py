@@ -43,6 +43,7 @@ class Refinement(NamedTuple):
     num_iterations: int  # over all stages
 
 
+MAX_ITERATIONS = 20  # per stage, by default
 GATE_MEDIANS = 3.0  # every gate: this many median nearest-neighbour distances, within the stage's bounds
 FINE_FLOOR = 0.25  # a fine stage's gate goes down to this share of its scale (dense, clean range scans)
 
@@ -54,12 +55,15 @@ def _pairs(tree: cKDTree, moved: np.ndarray, max_distance: float, scale: float, 
     between ``max_distance`` and ``scale × max_distance`` in a coarse stage (``scale > 1``: wide while the
     clouds lie apart, the finest gate once they lie on each other), between ``FINE_FLOOR × scale ×
     max_distance`` and ``scale × max_distance`` in a fine one (narrower only for clouds much denser and less
-    noisy than ``max_distance`` assumes)."""
+    noisy than ``max_distance`` assumes), there over the source points with a partner within ``scale ×
+    max_distance`` only: the part that does not overlap (half of a pair of range scans 90° apart) says
+    nothing of the noise."""
     ceiling = scale * max_distance
     floor = max_distance if scale > 1.0 else FINE_FLOOR * ceiling
     dist, idx = tree.query(moved, k=neighbours, distance_upper_bound=ceiling)
     dist, idx = dist.reshape(len(moved), -1), idx.reshape(len(moved), -1)
-    gate = float(np.clip(GATE_MEDIANS * np.median(dist[:, 0]), floor, ceiling))
+    nearest = dist[:, 0] if scale > 1.0 else dist[np.isfinite(dist[:, 0]), 0]  # fine: the overlap's own
+    gate = float(np.clip(GATE_MEDIANS * np.median(nearest), floor, ceiling)) if len(nearest) else ceiling
     rows, slot = np.nonzero(dist <= gate)
     return rows, idx[rows, slot], gate
 
@@ -71,7 +75,7 @@ def tukey_weights(residuals: np.ndarray, scale: float) -> np.ndarray:
 
 
 def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_normals=None,
-                       scales=(4.0, 1.0), max_iterations: int = 20, tolerance: float = 1e-4, neighbours: int = 3,
+                       scales=(4.0, 1.0), max_iterations: int = MAX_ITERATIONS, tolerance: float = 1e-4, neighbours: int = 3,
                        ref_tree: cKDTree | None = None) -> Refinement:
     """Refines ``init (4, 4)`` moving ``src (N, 3)`` onto ``ref (M, 3)`` with unit ``ref_normals (M, 3)``.
 
