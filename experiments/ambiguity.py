@@ -2,11 +2,11 @@
 symmetric real shapes and on the ordinary ones: the measurement behind ``alignment.AMBIGUITY_SHARE``.
 
     python -m experiments.ambiguity --data-root ../shared/data/modelnet40_real_subset [--rot-mag 180]
-        [--stride 5] [--output ambiguity.json]
+        [--stride 5] [--protocols partial,noisy] [--output ambiguity.json]
 
 Symmetric: every bottle, bowl, cone and cup of the train file (seeded draws; surfaces of revolution: the network saw
 them in training, which does not matter here: the question is whether their answers are told apart from a
-unique one). Ordinary: every ``--stride``-th pair of the test file (airplanes, bathtubs). Both protocols
+unique one; only where the data has those categories). Ordinary: every ``--stride``-th pair of the test file (airplanes, bathtubs). Both protocols
 (partial, noisy). Prints one JSON line per group: for each share in ``SHARES`` the fraction of pairs whose
 second distinct answer reaches it (ambiguous at that share), and, for the ordinary pairs, how many of those
 had a wrong best answer (> 5°) or a right one; writes the per-pair rows to ``--output``.
@@ -59,19 +59,24 @@ def main(argv=None) -> None:
     p.add_argument("--data-root", required=True)
     p.add_argument("--rot-mag", type=float, default=180.0)
     p.add_argument("--stride", type=int, default=5)
+    p.add_argument("--protocols", default="partial,noisy")
     p.add_argument("--output", default="ambiguity.json")
     a = p.parse_args(argv)
     from rpmnet_jax import data
     from rpmnet_jax.weights import loading
     params = loading.load_params(None)
     rows = []
-    for protocol in ("partial", "noisy"):
-        sym = data.ModelNet40(a.data_root, "train", protocol, rot_mag=a.rot_mag, seed=0, categories=list(SYMMETRIC))
-        rows += _rows(sym, range(len(sym)), params, "symmetric")
+    protocols = a.protocols.split(",")
+    names = data.ModelNet40(a.data_root, "val", protocols[0]).class_names
+    for protocol in protocols:
+        if set(SYMMETRIC) <= set(names):
+            sym = data.ModelNet40(a.data_root, "train", protocol, rot_mag=a.rot_mag, seed=0,
+                                  categories=list(SYMMETRIC))
+            rows += _rows(sym, range(len(sym)), params, "symmetric")
         ordinary = data.ModelNet40(a.data_root, "val", protocol, rot_mag=a.rot_mag)
         rows += _rows(ordinary, range(0, len(ordinary), a.stride), params, "ordinary")
     for group in ("symmetric", "ordinary"):
-        for protocol in ("partial", "noisy"):
+        for protocol in protocols:
             sel = [r for r in rows if r["group"] == group and r["protocol"] == protocol]
             print(json.dumps({"group": group, "protocol": protocol, "rot_mag": a.rot_mag, **summarize(sel)}))
     with open(a.output, "w") as f:
