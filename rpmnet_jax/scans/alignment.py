@@ -124,10 +124,11 @@ REFERENCE_FACTOR = 20  # the ICP's reference: up to this many times its source p
 # 0.21-0.26 deg on all of them)
 
 
-def _dense_clouds(pair: prepare.PreparedPair, refine_points: int, seed: int) -> _DenseClouds:
+def _dense_clouds(pair: prepare.PreparedPair, refine_points: int, seed: int,
+                  full_ref_tree: cKDTree | None = None) -> _DenseClouds:
     """Random samples of the non-stray points: ``refine_points`` of the source, ``REFERENCE_FACTOR`` × as
     many of the reference (unoriented normals estimated where missing, from the neighbours in the full cloud:
-    point-to-plane ICP needs only their lines)."""
+    point-to-plane ICP needs only their lines; ``full_ref_tree``: a k-d tree of ``pair.ref`` to reuse)."""
     rng = np.random.default_rng(seed + 1)
     core_src, core_ref = np.flatnonzero(pair.src_core), np.flatnonzero(pair.ref_core)
     i_src = core_src[prepare.sample_indices(rng, len(core_src), refine_points)]
@@ -135,7 +136,7 @@ def _dense_clouds(pair: prepare.PreparedPair, refine_points: int, seed: int) -> 
     src = pair.to_unit(pair.src[i_src], "src")
     ref = pair.to_unit(pair.ref[i_ref], "ref")
     normals = (pair.ref_normals[i_ref] if pair.ref_normals is not None
-               else normals_lib.normals_at(pair.ref, i_ref))
+               else normals_lib.normals_at(pair.ref, i_ref, tree=full_ref_tree))
     src_normals = (pair.src_normals[i_src] if pair.src_normals is not None
                    else normals_lib.normals_at(pair.src, i_src))
     return _DenseClouds(src, ref, normals, cKDTree(ref), src_normals)
@@ -168,9 +169,7 @@ def _refine(starts, dense: _DenseClouds | None, max_dist_unit: float, refine: st
     for s in starts:
         start = se3.to_homogeneous(s.transform)
         if refine == "icp":
-            r = refine_lib.point_to_plane_icp(dense.src, dense.ref, dense.ref_normals, start, max_dist_unit,
-                                              src_normals=dense.src_normals, ref_tree=dense.ref_tree,
-                                              **refine_options.icp_kwargs())
+            r = _icp(dense, start, max_dist_unit, **refine_options.icp_kwargs())
             final, converged, iters = r.transform, r.converged, r.num_iterations
         else:
             final, converged, iters = start, True, 0
@@ -212,7 +211,9 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     max_dist = (max_correspondence_distance if max_correspondence_distance is not None
                 else DEFAULT_RELATIVE_DISTANCE * pair.scale)
     max_dist_unit = max_dist / pair.scale
-    dense = _dense_clouds(pair, refine_options.points, seed) if (refine == "icp" or init != "local") else None
+    full_ref_tree = cKDTree(pair.ref)  # the caller's whole reference: scoring, information, normals
+    dense = (_dense_clouds(pair, refine_options.points, seed, full_ref_tree) if (refine == "icp" or init != "local")
+             else None)
     timings["prepare"] = time.perf_counter() - t_start
 
     starts = []
@@ -256,8 +257,8 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     ambiguous = len(distinct) > 1 and distinct[1].score[0] >= AMBIGUITY_SHARE * best.score[0] > 0
     transform = answers[0].transform
     t0 = time.perf_counter()
-    score = scoring.evaluate_registration(pair.src, pair.ref, transform, max_dist)
-    information = _information(pair, transform, score.correspondences)
+    score = scoring.evaluate_registration(pair.src, pair.ref, transform, max_dist, ref_tree=full_ref_tree)
+    information = _information(pair, transform, score.correspondences, full_ref_tree)
     timings["score"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     aligned = se3.apply(transform, np.asarray(src_points, np.float64))  # every row of the caller's
@@ -266,6 +267,12 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
                      (pair.src6.shape[1], pair.ref6.shape[1]), score.fitness, score.inlier_rmse,
                      rows, best.converged, best.num_iterations, float(max_dist), best.init,
                      timings, answers, bool(ambiguous), information)
+
+
+def _icp(dense: _DenseClouds, start: np.ndarray, max_dist_unit: float, **icp_kwargs) -> refine_lib.Refinement:
+    """:func:`rpmnet_jax.scans.refine.point_to_plane_icp` from ``start (4, 4)`` on the dense samples."""
+    return refine_lib.point_to_plane_icp(dense.src, dense.ref, dense.ref_normals, start, max_dist_unit,
+                                         src_normals=dense.src_normals, ref_tree=dense.ref_tree, **icp_kwargs)
 
 
 POLISH_FACTOR = 3  # the winner, if its refinement stopped on max_iterations, continues for this many times as many
@@ -279,8 +286,7 @@ def _polish(best: Candidate, dense: _DenseClouds, max_dist_unit: float,
     iterations per stage, 0.23-0.25 deg at convergence, 25-46 iterations)."""
     kwargs = refine_options.icp_kwargs()
     kwargs["max_iterations"] = POLISH_FACTOR * kwargs.get("max_iterations", refine_lib.MAX_ITERATIONS)
-    r = refine_lib.point_to_plane_icp(dense.src, dense.ref, dense.ref_normals, best.transform, max_dist_unit,
-                                      src_normals=dense.src_normals, ref_tree=dense.ref_tree, **kwargs)
+    r = _icp(dense, best.transform, max_dist_unit, **kwargs)
     score = _selection_score(dense, r.transform, max_dist_unit)
     if score < best.score:  # slid away (a shape that slides along itself): keep the shorter run's answer
         return best
@@ -305,7 +311,8 @@ def _distinct(ranked: list) -> list:
     return kept
 
 
-def _information(pair: prepare.PreparedPair, transform: np.ndarray, correspondences: np.ndarray) -> np.ndarray:
+def _information(pair: prepare.PreparedPair, transform: np.ndarray, correspondences: np.ndarray,
+                 full_ref_tree: cKDTree) -> np.ndarray:
     """Point-to-plane information ``(6, 6)`` of ``transform`` over the inlier ``correspondences (n, 2)`` of the
     full clouds (:func:`rpmnet_jax.scans.scoring.plane_fit`; the reference's normals at the paired points,
     estimated from the full reference where the caller gave none)."""
@@ -314,7 +321,7 @@ def _information(pair: prepare.PreparedPair, transform: np.ndarray, corresponden
         normals = pair.ref_normals
     else:
         normals = np.zeros_like(pair.ref)
-        normals[ref_rows] = normals_lib.normals_at(pair.ref, ref_rows)
+        normals[ref_rows] = normals_lib.normals_at(pair.ref, ref_rows, tree=full_ref_tree)
     return scoring.plane_fit(pair.src, pair.ref, normals, transform, correspondences).information
 
 
