@@ -168,7 +168,8 @@ def test_pipeline_results_are_scored_by_nearest_neighbours_and_deterministic(ran
 
 
 @pytest.mark.parametrize("bad", [dict(top_k=0), dict(hypotheses="dodecahedral"), dict(points=2), dict(iters=0),
-                                 dict(polish_points=0), dict(auto_fitness=1.5)])
+                                 dict(polish_points=0), dict(auto_fitness=1.5),
+                                 dict(network_fitness=-0.1)])
 def test_global_options_are_checked_when_made(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         rpmnet_jax.GlobalOptions(**bad)
@@ -212,14 +213,16 @@ def test_nan_rows_keep_the_callers_row_numbers(random_weights):
 @pytest.mark.parametrize("cloud", ["source", "reference"])
 def test_a_stray_far_point_does_not_change_the_answer(random_weights, cloud):
     """One point 100 radii away, inside the arrays: the same transform (the default pipeline with every
-    stage run: local, classical and, forced by ``auto_fitness=1``, the global search), the same
+    stage run: classical, local (forced by ``network_fitness=1``) and, forced by ``auto_fitness=1``, the global
+    search), the same
     correspondence distance, and the stray is scored as a source point without a partner."""
     src, src_n = _shape(seed=14, n=600)
     ref, ref_n = _shape(seed=15, n=600)
     ref = ref @ Rotation.from_euler("x", 40, degrees=True).as_matrix().T + 0.2
-    kw = dict(checkpoint=random_weights, num_iters=2, global_options=rpmnet_jax.GlobalOptions(auto_fitness=1.0))
+    kw = dict(checkpoint=random_weights, num_iters=2,
+              global_options=rpmnet_jax.GlobalOptions(auto_fitness=1.0, network_fitness=1.0))
     clean = rpmnet_jax.align(src, ref, src_n, ref_n, **kw)
-    assert clean.timings["global"] > 0 and clean.timings["classical"] > 0
+    assert clean.timings["global"] > 0 and clean.timings["classical"] > 0 and clean.timings["network"] > 0
     pts, nrm = (src, src_n) if cloud == "source" else (ref, ref_n)
     stray = pts.mean(0) + 100 * np.linalg.norm(pts - pts.mean(0), axis=1).max() * np.array([0.6, 0.0, 0.8])
     pts, nrm = np.insert(pts, 123, stray, axis=0), np.insert(nrm, 123, [1.0, 0.0, 0.0], axis=0)

@@ -33,8 +33,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="centre each cloud on its own centroid (default) or both on their joint centroid")
     p.add_argument("--estimate-normals", action="store_true", help="re-estimate normals even if the files have them")
     p.add_argument("--init", choices=("auto", "local", "global", "classical"), default="auto",
-                   help="starts: auto (the network from the identity plus FPFH + RANSAC hypotheses, the network's "
-                        "global search when no answer fits well; default), local (the network from the identity), "
+                   help="starts: auto (FPFH + RANSAC hypotheses; the network from the identity when none fits well or "
+                        "the best is ambiguous, its global search when still none fits well; default), local (the network from the identity), "
                         "global (the network from rotations covering every orientation, plus the hypotheses), "
                         "classical (the hypotheses alone, no network)")
     p.add_argument("--refine", choices=("icp", "none"), default="icp",

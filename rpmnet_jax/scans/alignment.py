@@ -7,10 +7,11 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
 2. start: ``init="local"`` runs the network once from the identity; ``init="global"`` runs it from the
    rotation hypotheses of :mod:`rpmnet_jax.scans.global_search` in one batched call, polishes each answer
    with a short ICP and keeps the ``top_k`` best (:class:`~rpmnet_jax.scans.options.GlobalOptions`);
-   ``init="auto"`` (default) is local plus up to ``GlobalOptions.classical`` FPFH + RANSAC hypotheses
-   (:mod:`rpmnet_jax.scans.feature_ransac`), and global too when no refined answer's fitness reaches
-   ``GlobalOptions.auto_fitness``; ``init="classical"`` refines the classical hypotheses alone (no network;
-   the identity when they find none);
+   ``init="auto"`` (default) refines up to ``GlobalOptions.classical`` FPFH + RANSAC hypotheses
+   (:mod:`rpmnet_jax.scans.feature_ransac`: rotation invariant, cheap) first, adds the local start when no
+   refined answer's fitness reaches ``GlobalOptions.network_fitness`` or the best is ambiguous, and the global
+   search when still none reaches ``GlobalOptions.auto_fitness``; ``init="classical"`` refines the classical
+   hypotheses alone (no network; the identity when they find none);
 3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.scans.refine`) from
    each start on denser samples of the caller's clouds (``RefineOptions.points`` random source points and
    up to ``REFERENCE_FACTOR`` × as many of the reference); the :class:`Candidate` with the best :func:`_selection_score` wins;
@@ -216,25 +217,21 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
              else None)
     timings["prepare"] = time.perf_counter() - t_start
 
-    starts = []
-    if init in ("local", "auto"):
-        t0 = time.perf_counter()
-        reg = registration.jitted(cfg, int(num_iters))(params, pair.src6, pair.ref6)
-        perm = np.asarray(reg.perm_matrices[-1, 0])
-        net_ts = np.asarray(reg.transforms[:, 0], np.float64)
-        starts.append(Start("local", net_ts, float(confidence(perm)), net_ts[-1]))
-        timings["network"] = time.perf_counter() - t0
-
+    starts = [_local_start(params, pair, cfg, num_iters, timings)] if init == "local" else []
     if init != "local" and global_options.classical:
         t0 = time.perf_counter()
         starts += _classical_starts(pair, global_options.classical, seed)
         timings["classical"] = time.perf_counter() - t0
-
-    if not starts:  # init="classical" and no hypothesis: the clouds as they lie
+    if not starts and init == "classical":  # no hypothesis: the clouds as they lie
         starts.append(Start("identity", np.eye(4)[None, :3], 0.0, np.eye(4)))
     t0 = time.perf_counter()
     candidates = _refine(starts, dense, max_dist_unit, refine, refine_options)
     timings["refine"] += time.perf_counter() - t0
+    if init == "auto" and _needs_network(candidates, global_options):
+        local = [_local_start(params, pair, cfg, num_iters, timings)]
+        t0 = time.perf_counter()
+        candidates += _refine(local, dense, max_dist_unit, refine, refine_options)
+        timings["refine"] += time.perf_counter() - t0
     best_fitness = max((c.score[1] for c in candidates), default=0.0)
     if init == "global" or (init == "auto" and best_fitness < global_options.auto_fitness):
         t0 = time.perf_counter()
@@ -246,7 +243,7 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
         candidates += _refine(screened, dense, max_dist_unit, refine, refine_options)
         timings["refine"] += time.perf_counter() - t0
 
-    distinct = _distinct(sorted(candidates, key=lambda c: c.score, reverse=True))  # stable: local first
+    distinct = _distinct(sorted(candidates, key=lambda c: c.score, reverse=True))  # stable: earlier first
     if refine == "icp" and not distinct[0].converged:
         t0 = time.perf_counter()
         distinct[0] = _polish(distinct[0], dense, max_dist_unit, refine_options)
@@ -254,7 +251,7 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     best = distinct[0]
     answers = tuple(Answer(pair.to_callers_units(c.transform[:3]), float(c.score[0]), float(c.score[1]),
                            -float(c.score[2]) * pair.scale, c.init) for c in distinct)
-    ambiguous = len(distinct) > 1 and distinct[1].score[0] >= AMBIGUITY_SHARE * best.score[0] > 0
+    ambiguous = _is_ambiguous(distinct)
     transform = answers[0].transform
     t0 = time.perf_counter()
     score = scoring.evaluate_registration(pair.src, pair.ref, transform, max_dist, ref_tree=full_ref_tree)
@@ -267,6 +264,33 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
                      (pair.src6.shape[1], pair.ref6.shape[1]), score.fitness, score.inlier_rmse,
                      rows, best.converged, best.num_iterations, float(max_dist), best.init,
                      timings, answers, bool(ambiguous), information)
+
+
+def _local_start(params, pair: prepare.PreparedPair, cfg, num_iters: int, timings: dict) -> Start:
+    """The network once from the identity (the paper's method) as a :class:`Start`; adds its time to
+    ``timings["network"]``."""
+    t0 = time.perf_counter()
+    reg = registration.jitted(cfg, int(num_iters))(params, pair.src6, pair.ref6)
+    perm = np.asarray(reg.perm_matrices[-1, 0])
+    net_ts = np.asarray(reg.transforms[:, 0], np.float64)
+    timings["network"] += time.perf_counter() - t0
+    return Start("local", net_ts, float(confidence(perm)), net_ts[-1])
+
+
+def _needs_network(candidates: list, opts: options_lib.GlobalOptions) -> bool:
+    """``init="auto"`` runs the network when no refined classical candidate reaches ``opts.network_fitness``
+    or the best is ambiguous (a flip scores close to it: the network's start, which knows the shapes, may
+    tell them apart)."""
+    if not candidates:
+        return True
+    ranked = _distinct(sorted(candidates, key=lambda c: c.score, reverse=True))
+    return ranked[0].score[1] < opts.network_fitness or _is_ambiguous(ranked)
+
+
+def _is_ambiguous(distinct: list) -> bool:
+    """Whether the second of the distinct :class:`Candidate` s ``distinct`` (best first) reaches
+    ``AMBIGUITY_SHARE`` of the best's score."""
+    return len(distinct) > 1 and distinct[1].score[0] >= AMBIGUITY_SHARE * distinct[0].score[0] > 0
 
 
 def _icp(dense: _DenseClouds, start: np.ndarray, max_dist_unit: float, **icp_kwargs) -> refine_lib.Refinement:

@@ -23,31 +23,47 @@ def _cross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
+def _acos_greater(x, y):
+    """``arccos(x) > arccos(y)`` for ``x, y`` in ``[0, 1]`` as Open3D decides it, with ``arccos`` evaluated only
+    where ``x`` and ``y`` are within 1e-6 (elsewhere ``x < y`` decides: arccos is decreasing; near-equal values
+    can round to one arccos, and then neither is greater)."""
+    out = x < y
+    close = np.flatnonzero(np.abs(x - y) < 1e-6)
+    out.flat[close] = np.arccos(x.flat[close]) > np.arccos(y.flat[close])
+    return out
+
+
 def pair_features(p1, n1, p2, n2):
     """Open3D's ``ComputePairFeatures`` of point pairs ``(*, 3)`` each: ``(f1, f2, f3, f4) (*, 4)`` with
     ``f1 = α`` in ``[-π, π]``, ``f2 = φ`` and ``f3 = θ`` cosines in ``[-1, 1]``, ``f4`` the distance; zeros for a
-    pair at one place or with the offset parallel to the chosen normal. (Component-wise: ``np.cross`` and
-    ``(*, 3)`` temporaries cost 3x more on the ``(N, K)`` pairs of :func:`spfh`.)"""
+    pair at one place or with the offset parallel to the chosen normal."""
     shape = np.broadcast_shapes(np.shape(p1), np.shape(n1), np.shape(p2), np.shape(n2))[:-1]
-    p1, n1, p2, n2 = (np.moveaxis(np.broadcast_to(x, shape + (3,)), -1, 0) for x in (p1, n1, p2, n2))
-    d = p2 - p1  # (3, *)
+    comps = (np.moveaxis(np.broadcast_to(x, shape + (3,)), -1, 0) for x in (p1, n1, p2, n2))
+    return np.stack(_pair_features(*comps), axis=-1)
+
+
+def _pair_features(p1, n1, p2, n2):
+    """:func:`pair_features` on component-first arrays ``(3, *)`` (``x[0], x[1], x[2]`` broadcast together):
+    ``(f1, f2, f3, f4)``, each ``(*)``. Component-wise: ``np.cross`` and interleaved ``(*, 3)`` temporaries cost
+    3-4x more on the ``(N, K)`` pairs of :func:`spfh`."""
+    d = tuple(p2[i] - p1[i] for i in range(3))
     f4 = np.sqrt(_dot(d, d))
     safe = np.where(f4 > 0, f4, 1.0)
     a1 = _dot(n1, d) / safe
     a2 = _dot(n2, d) / safe
-    swap = np.arccos(np.clip(np.abs(a1), 0, 1)) > np.arccos(np.clip(np.abs(a2), 0, 1))
-    na = np.where(swap, n2, n1)
-    nb = np.where(swap, n1, n2)
-    d = np.where(swap, -d, d)
+    swap = _acos_greater(np.clip(np.abs(a1), 0, 1), np.clip(np.abs(a2), 0, 1))
+    na = tuple(np.where(swap, n2[i], n1[i]) for i in range(3))
+    nb = tuple(np.where(swap, n1[i], n2[i]) for i in range(3))
+    d = tuple(np.where(swap, -d[i], d[i]) for i in range(3))
     f3 = np.where(swap, -a2, a1)
-    v = np.stack(_cross(d, na))
+    v = _cross(d, na)
     v_norm = np.sqrt(_dot(v, v))
-    v = v / np.where(v_norm > 0, v_norm, 1.0)
+    v = tuple(c / np.where(v_norm > 0, v_norm, 1.0) for c in v)
     w = _cross(na, v)
     f2 = _dot(v, nb)
     f1 = np.arctan2(_dot(w, nb), _dot(na, nb))
-    out = np.stack([f1, f2, f3, f4], axis=-1)
-    return np.where(((f4 > 0) & (v_norm > 0))[..., None], out, 0.0)
+    ok = (f4 > 0) & (v_norm > 0)
+    return tuple(np.where(ok, f, 0.0) for f in (f1, f2, f3, f4))
 
 
 def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: cKDTree | None = None):
@@ -55,7 +71,7 @@ def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: cKDTree | N
     of each point, itself included first. Returns ``(idx (N, max_nn), dist² (N, max_nn), valid (N, max_nn))``;
     invalid slots point at the point itself."""
     tree = tree or cKDTree(points)
-    dist, idx = tree.query(points, k=min(max_nn, len(points)), distance_upper_bound=radius)
+    dist, idx = tree.query(points, k=min(max_nn, len(points)), distance_upper_bound=radius, workers=-1)
     valid = np.isfinite(dist)
     own = np.arange(len(points))[:, None]
     return np.where(valid, idx, own), np.where(valid, dist, 0.0) ** 2, valid
@@ -64,13 +80,14 @@ def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: cKDTree | N
 def spfh(points, normals, idx, valid) -> np.ndarray:
     """Simplified PFH ``(N, 33)`` of every point from its neighbours ``idx, valid (N, K)`` (slot 0 = itself)."""
     n = len(points)
-    pf = pair_features(points[:, None, :], normals[:, None, :], points[idx], normals[idx])  # (N, K, 4)
+    pts, nrm = points.T, normals.T  # (3, N): contiguous per component, gathered to (3, N, K)
+    f1, f2, f3, _ = _pair_features(pts[:, :, None], nrm[:, :, None], pts[:, idx], nrm[:, idx])  # (N, K) each
     used = valid.copy()
     used[:, 0] = False  # the point itself
     count = used.sum(axis=1)
     incr = np.where(count > 0, 100.0 / np.maximum(count, 1), 0.0)  # Open3D: 100 / (neighbours - 1)
-    bins = [np.floor(BINS * (pf[..., 0] + np.pi) / (2 * np.pi)), np.floor(BINS * (pf[..., 1] + 1.0) * 0.5),
-            np.floor(BINS * (pf[..., 2] + 1.0) * 0.5)]
+    bins = [np.floor(BINS * (f1 + np.pi) / (2 * np.pi)), np.floor(BINS * (f2 + 1.0) * 0.5),
+            np.floor(BINS * (f3 + 1.0) * 0.5)]
     weights = np.where(used, incr[:, None], 0.0).ravel()  # unused slots add 0 (no boolean compaction)
     rows = np.arange(n)[:, None] * (3 * BINS)
     flat = np.concatenate([(rows + np.clip(b, 0, BINS - 1).astype(np.int64) + block * BINS).ravel()

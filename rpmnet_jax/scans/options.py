@@ -52,6 +52,8 @@ class GlobalOptions:
 
     ``classical``: how many distinct FPFH + RANSAC hypotheses (:mod:`rpmnet_jax.scans.feature_ransac`,
     rotation-invariant, at least 45° apart) join the candidates of ``auto`` and ``global`` (0: none).
+    ``auto`` refines them first and runs the network from the identity only when none reaches a fitness of
+    ``network_fitness`` or the best is ambiguous (a flip scores close to it).
     The network's global search (``init="global"``, or ``"auto"`` when no candidate reaches a fitness of
     ``auto_fitness``): ``hypotheses``, ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened
     with ``iters`` network iterations on ``points`` per cloud and a short ICP on ``polish_points`` source
@@ -65,6 +67,7 @@ class GlobalOptions:
     polish_points: int = 1000
     auto_fitness: float = 0.6
     classical: int = 4
+    network_fitness: float = 0.6
 
     def __post_init__(self):
         if self.hypotheses not in global_search.HYPOTHESIS_SETS:
@@ -79,6 +82,8 @@ class GlobalOptions:
             raise ValueError(f"GlobalOptions.iters must be >= 1, got {self.iters}")
         if not 0.0 <= self.auto_fitness <= 1.0:
             raise ValueError(f"GlobalOptions.auto_fitness must be in [0, 1], got {self.auto_fitness}")
+        if not 0.0 <= self.network_fitness <= 1.0:
+            raise ValueError(f"GlobalOptions.network_fitness must be in [0, 1], got {self.network_fitness}")
         if self.classical < 0:
             raise ValueError(f"GlobalOptions.classical must be >= 0, got {self.classical}")
 
