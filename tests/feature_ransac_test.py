@@ -34,3 +34,38 @@ def test_ransac_is_deterministic_under_a_seed_and_empty_without_correspondences(
     b = feature_ransac.ransac_hypotheses(src, ref, corr, 0.075, seed=3)
     np.testing.assert_array_equal(a.transforms, b.transforms)
     assert len(feature_ransac.ransac_hypotheses(src, ref, corr[:2], 0.075).transforms) == 0
+
+
+def test_nearest_rows_equal_a_kd_tree():
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(4)
+    rows, queries = rng.uniform(0, 100, (300, 33)), rng.uniform(0, 100, (200, 33))
+    np.testing.assert_array_equal(feature_ransac.nearest_rows(queries, rows, chunk=64),
+                                  cKDTree(rows).query(queries)[1])
+
+
+def test_moved_distances_equal_the_direct_form():
+    """The ``(M, 15) @ (15, C)`` expansion against ``|R s + t - r|²`` on unit-sphere points."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(5)
+    rot = Rotation.random(40, random_state=5).as_matrix()
+    t = np.concatenate([rot, rng.uniform(-0.5, 0.5, (40, 3, 1))], axis=2).astype(np.float32)
+    s, r = (rng.uniform(-1, 1, (128, 3)).astype(np.float32) for _ in range(2))
+    direct = np.sum((np.einsum("mij,cj->mci", rot, s) + t[:, None, :, 3] - r) ** 2, axis=-1)
+    np.testing.assert_allclose(np.asarray(feature_ransac._moved_sq_distances(t, s, r)), direct, atol=2e-5)
+
+
+def test_samples_the_edge_checker_rejects_are_never_solved(monkeypatch):
+    """Correspondences that pair every source point with one tiny triangle: no sample passes the edge-length
+    checker, so no hypothesis, and the solve is never called."""
+    def solve(*args):
+        raise AssertionError("a sample the edge-length checker rejects was solved")
+
+    monkeypatch.setattr(feature_ransac, "_score_samples", solve)
+    src, _, _, _, _, _ = _pair(30.0)
+    ref = np.repeat(np.array([[0.0, 0, 0], [1e-3, 0, 0], [0, 1e-3, 0]]), 10, axis=0)
+    corr = np.stack([np.arange(30), np.arange(30)], axis=1)
+    h = feature_ransac.ransac_hypotheses(src[:30], ref, corr, 0.075)
+    assert len(h.transforms) == 0 and h.num_correspondences == 30

@@ -41,3 +41,13 @@ def test_pair_features_are_zero_for_coincident_points_and_bins_sum_to_100():
     hist = fpfh.spfh(pts, nrm, idx, valid).reshape(-1, 3, fpfh.BINS)
     has = valid[:, 1:].any(axis=1)
     np.testing.assert_allclose(hist[has].sum(axis=-1), 100.0)
+
+
+def test_the_normal_swap_ties_as_open3d_for_arrays_and_scalars():
+    """Open3D swaps when ``acos(|a1|) > acos(|a2|)``: two cosines one ulp apart with one arccos do not swap."""
+    x = 1e-9
+    y = np.nextafter(x, 1.0)
+    assert np.arccos(x) == np.arccos(y)
+    assert not fpfh._acos_greater(np.array([x]), np.array([y]))[0]
+    assert not fpfh._acos_greater(np.float64(x), np.float64(y))
+    assert fpfh._acos_greater(np.array([0.2, 0.9]), np.array([0.3, 0.1])).tolist() == [True, False]

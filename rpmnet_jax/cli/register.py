@@ -33,12 +33,14 @@ def _parser() -> argparse.ArgumentParser:
                    help="centre each cloud on its own centroid (default) or both on their joint centroid")
     p.add_argument("--estimate-normals", action="store_true", help="re-estimate normals even if the files have them")
     p.add_argument("--init", choices=("auto", "local", "global", "classical"), default="auto",
-                   help="starts: auto (FPFH + RANSAC hypotheses; the network from the identity when none fits well or "
-                        "the best is ambiguous, its global search when still none fits well; default), local (the network from the identity), "
+                   help="starts: auto (FPFH + RANSAC hypotheses; the network from the identity when the best "
+                        "fits poorly or is ambiguous, its global search when still none fits well; default), "
+                        "local (the network from the identity), "
                         "global (the network from rotations covering every orientation, plus the hypotheses), "
                         "classical (the hypotheses alone, no network)")
     p.add_argument("--refine", choices=("icp", "none"), default="icp",
-                   help="robust point-to-plane ICP on denser samples (default), or none (the raw network)")
+                   help="robust point-to-plane ICP on denser samples (default), or none (the winning start as it is; "
+                        "with --init local the raw network)")
     p.add_argument("--max-correspondence-distance", type=float, default=None,
                    help="inlier threshold in the clouds' units (default: 5%% of the clouds' radius)")
     p.add_argument("--low-fitness", type=float, default=0.3,

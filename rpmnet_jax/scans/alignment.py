@@ -8,14 +8,15 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    rotation hypotheses of :mod:`rpmnet_jax.scans.global_search` in one batched call, polishes each answer
    with a short ICP and keeps the ``top_k`` best (:class:`~rpmnet_jax.scans.options.GlobalOptions`);
    ``init="auto"`` (default) refines up to ``GlobalOptions.classical`` FPFH + RANSAC hypotheses
-   (:mod:`rpmnet_jax.scans.feature_ransac`: rotation invariant, cheap) first, adds the local start when no
-   refined answer's fitness reaches ``GlobalOptions.network_fitness`` or the best is ambiguous, and the global
-   search when still none reaches ``GlobalOptions.auto_fitness``; ``init="classical"`` refines the classical
+   (:mod:`rpmnet_jax.scans.feature_ransac`: rotation invariant, cheap) first, adds the local start when the
+   best refined answer's fitness is below ``GlobalOptions.network_fitness`` or it is ambiguous, and the global
+   search when still no answer reaches ``GlobalOptions.auto_fitness``; ``init="classical"`` refines the classical
    hypotheses alone (no network; the identity when they find none);
 3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.scans.refine`) from
    each start on denser samples of the caller's clouds (``RefineOptions.points`` random source points and
    up to ``REFERENCE_FACTOR`` × as many of the reference); the :class:`Candidate` with the best :func:`_selection_score` wins;
-   ``refine="none"`` returns the network's answer as it is (the paper's method);
+   ``refine="none"`` returns the winning start as it is (with ``init="local"``: the network's answer, the
+   paper's method);
 4. score: fitness, inlier RMSE and correspondences of the answer on the full clouds, as Open3D's
    ``evaluate_registration`` (:mod:`rpmnet_jax.scans.scoring`), and the point-to-plane ``information``
    (6×6) of its fit (:meth:`Alignment.covariance` inverts it);
@@ -198,7 +199,7 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     ``separate`` (each cloud on its centroid) or ``common`` (both on their joint centroid).
     ``refine_options`` (:class:`~rpmnet_jax.scans.options.RefineOptions`): the ICP's sample size and
     stopping; ``global_options`` (:class:`~rpmnet_jax.scans.options.GlobalOptions`): the rotation
-    hypotheses, their screening and ``auto``'s fitness bar.
+    hypotheses, their screening and ``auto``'s fitness bars.
     Deterministic for a ``seed``.
     """
     options_lib.check(init, refine, num_iters, max_correspondence_distance, refine_options, global_options)
@@ -222,7 +223,7 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
         t0 = time.perf_counter()
         starts += _classical_starts(pair, global_options.classical, seed)
         timings["classical"] = time.perf_counter() - t0
-    if not starts and init == "classical":  # no hypothesis: the clouds as they lie
+    if not starts and init in ("classical", "global"):  # no hypothesis: the clouds as they lie
         starts.append(Start("identity", np.eye(4)[None, :3], 0.0, np.eye(4)))
     t0 = time.perf_counter()
     candidates = _refine(starts, dense, max_dist_unit, refine, refine_options)
@@ -278,10 +279,10 @@ def _local_start(params, pair: prepare.PreparedPair, cfg, num_iters: int, timing
 
 
 def _needs_network(candidates: list, opts: options_lib.GlobalOptions) -> bool:
-    """``init="auto"`` runs the network when no refined classical candidate reaches ``opts.network_fitness``
-    or the best is ambiguous (a flip scores close to it: the network's start, which knows the shapes, may
-    tell them apart)."""
-    if not candidates:
+    """``init="auto"`` runs the network when the best refined classical candidate (by selection score) has a
+    fitness below ``opts.network_fitness`` (always at 1), or is ambiguous (a flip scores close to it: the
+    network's start may tell them apart), or there is none."""
+    if not candidates or opts.network_fitness >= 1.0:
         return True
     ranked = _distinct(sorted(candidates, key=lambda c: c.score, reverse=True))
     return ranked[0].score[1] < opts.network_fitness or _is_ambiguous(ranked)

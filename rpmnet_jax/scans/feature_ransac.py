@@ -60,7 +60,8 @@ def _moved_sq_distances(t, src_c, ref_c):
     per_t = jnp.concatenate([rot.reshape(-1, 9), jnp.einsum("mji,mj->mi", rot, trans), trans], axis=1)  # (M, 15)
     per_c = jnp.concatenate([-2.0 * (ref_c[:, :, None] * src_c[:, None, :]).reshape(-1, 9), 2.0 * src_c,
                              -2.0 * ref_c], axis=1)  # (C, 15)
-    return (per_t @ per_c.T + jnp.sum(trans**2, -1)[:, None]
+    # full float32 products: the terms cancel to ~0.0056 near the threshold, TF32 (a GPU's default) loses it
+    return (jnp.matmul(per_t, per_c.T, precision=jax.lax.Precision.HIGHEST) + jnp.sum(trans**2, -1)[:, None]
             + (jnp.sum(src_c**2, -1) + jnp.sum(ref_c**2, -1))[None])
 
 

@@ -27,7 +27,7 @@ def _acos_greater(x, y):
     """``arccos(x) > arccos(y)`` for ``x, y`` in ``[0, 1]`` as Open3D decides it, with ``arccos`` evaluated only
     where ``x`` and ``y`` are within 1e-6 (elsewhere ``x < y`` decides: arccos is decreasing; near-equal values
     can round to one arccos, and then neither is greater)."""
-    out = x < y
+    out = np.array(x < y)  # an array also for scalar inputs (written below)
     close = np.flatnonzero(np.abs(x - y) < 1e-6)
     out.flat[close] = np.arccos(x.flat[close]) > np.arccos(y.flat[close])
     return out
