@@ -238,7 +238,7 @@ def test_a_stray_far_point_does_not_change_the_answer(random_weights, cloud):
 
 
 def test_deterministic_under_a_seed_and_the_global_screen_follows_it(random_weights):
-    from rpmnet_jax.scans import alignment, prepare
+    from rpmnet_jax.scans import prepare, starts
 
     src, src_n = _shape(seed=16, n=500)
     ref, _ = _shape(seed=17, n=500)
@@ -247,10 +247,10 @@ def test_deterministic_under_a_seed_and_the_global_screen_follows_it(random_weig
     np.testing.assert_array_equal(a.transform, b.transform)
     np.testing.assert_array_equal(a.correspondences, b.correspondences)
     pair = prepare.prepare_pair(src, ref, src_n, None, num_points=256)
-    dense = alignment._dense_clouds(pair, 5000, 0)
+    dense = starts.dense_clouds(pair, 5000, 0)
     params = loading.load_params(random_weights)
     opts = rpmnet_jax.GlobalOptions(points=64)  # fewer than the 256 prepared: the seed picks which
-    screen = lambda seed: np.stack([s.network_transforms for s in alignment._screen_hypotheses(
+    screen = lambda seed: np.stack([s.network_transforms for s in starts.screen_hypotheses(
         params, pair, dense, rpmnet_jax.RPMNetConfig(), opts, 0.05, seed)])
     first = screen(0)
     np.testing.assert_array_equal(screen(0), first)

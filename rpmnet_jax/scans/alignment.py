@@ -14,7 +14,8 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    hypotheses alone (no network; the identity when they find none);
 3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.scans.refine`) from
    each start on denser samples of the caller's clouds (``RefineOptions.points`` random source points and
-   up to ``REFERENCE_FACTOR`` × as many of the reference); the :class:`Candidate` with the best :func:`_selection_score` wins;
+   up to ``starts.REFERENCE_FACTOR`` × as many of the reference); the :class:`Candidate` with the best
+   :func:`~rpmnet_jax.scans.starts.selection_score` wins;
    ``refine="none"`` returns the winning start as it is (with ``init="local"``: the network's answer, the
    paper's method);
 4. score: fitness, inlier RMSE and correspondences of the answer on the full clouds, as Open3D's
@@ -41,11 +42,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rpmnet_jax import config as config_lib
-from rpmnet_jax import registration
 from rpmnet_jax.ops import se3
-from rpmnet_jax.scans import feature_ransac, global_search, options as options_lib, prepare, refine as refine_lib
-from rpmnet_jax.scans import scoring
+from rpmnet_jax.scans import options as options_lib, prepare, refine as refine_lib, scoring
 from rpmnet_jax.scans import normals as normals_lib
+from rpmnet_jax.scans import starts as starts_lib
 from rpmnet_jax.weights import loading
 
 DEFAULT_RELATIVE_DISTANCE = 0.05
@@ -83,26 +83,17 @@ class Answer(NamedTuple):
     """One distinct refined answer of :attr:`Alignment.candidates`."""
 
     transform: np.ndarray  # (4, 4), caller's units
-    score: float  # share of the (dense-sampled) source within SELECT_FRACTION × the distance: what ranks
+    score: float  # share of the (dense-sampled) source within starts.SELECT_FRACTION × the distance: ranks
     fitness: float  # the same share within the full distance
     inlier_rmse: float  # RMS distance of those pairs, caller's units
     init: str  # the start it came from: "local", "classical" or "global"
-
-
-class Start(NamedTuple):
-    """A network answer to refine, in the normalised frame."""
-
-    init: str  # "local", "classical" or "global"
-    network_transforms: np.ndarray  # (I, 3, 4): the network's iterates from this start (a classical one: itself)
-    confidence: float  # mean inlier mass of the network's last match matrix
-    transform: np.ndarray  # (3, 4) or (4, 4): where the refinement starts
 
 
 class Candidate(NamedTuple):
     """A refined start, in the normalised frame; the largest ``score`` wins."""
 
     transform: np.ndarray  # (4, 4): the refined answer, maps source onto reference
-    score: tuple  # :func:`_selection_score`: (tight fitness, fitness, -RMSE)
+    score: tuple  # :func:`starts.selection_score`: (tight fitness, fitness, -RMSE)
     init: str  # "local", "classical" or "global"
     network_transforms: np.ndarray  # (I, 3, 4): the network's iterates from this start (a classical one: itself)
     confidence: float
@@ -110,63 +101,13 @@ class Candidate(NamedTuple):
     num_iterations: int  # refinement iterations (0 for refine="none")
 
 
-class _DenseClouds(NamedTuple):
-    """Denser samples of both clouds in the normalised frame, for refinement and scoring of candidates."""
-
-    src: np.ndarray  # (n, 3)
-    ref: np.ndarray  # (m, 3)
-    ref_normals: np.ndarray  # (m, 3)
-    ref_tree: cKDTree
-    src_normals: np.ndarray  # (n, 3): for the ICP's symmetric planes (lines only: signs need not agree)
-
-
-REFERENCE_FACTOR = 20  # the ICP's reference: up to this many times its source points (all of most scans)
-# (a random 2/3 of a reference widens its nearest-neighbour gaps: the Stanford bunny's bun180 onto bun090, 54%
-# overlap, ended 1.3-2.4 deg off from its answer with 5,000 source points on 20,000 of the reference's 30,379,
-# 0.21-0.26 deg on all of them)
-
-
-def _dense_clouds(pair: prepare.PreparedPair, refine_points: int, seed: int,
-                  full_ref_tree: cKDTree | None = None) -> _DenseClouds:
-    """Random samples of the non-stray points: ``refine_points`` of the source, ``REFERENCE_FACTOR`` × as
-    many of the reference (unoriented normals estimated where missing, from the neighbours in the full cloud:
-    point-to-plane ICP needs only their lines; ``full_ref_tree``: a k-d tree of ``pair.ref`` to reuse)."""
-    rng = np.random.default_rng(seed + 1)
-    core_src, core_ref = np.flatnonzero(pair.src_core), np.flatnonzero(pair.ref_core)
-    i_src = core_src[prepare.sample_indices(rng, len(core_src), refine_points)]
-    i_ref = core_ref[prepare.sample_indices(rng, len(core_ref), REFERENCE_FACTOR * refine_points)]
-    src = pair.to_unit(pair.src[i_src], "src")
-    ref = pair.to_unit(pair.ref[i_ref], "ref")
-    normals = (pair.ref_normals[i_ref] if pair.ref_normals is not None
-               else normals_lib.normals_at(pair.ref, i_ref, tree=full_ref_tree))
-    src_normals = (pair.src_normals[i_src] if pair.src_normals is not None
-                   else normals_lib.normals_at(pair.src, i_src))
-    return _DenseClouds(src, ref, normals, cKDTree(ref), src_normals)
-
-
 SLID_SHARE = 0.5  # a refined candidate scoring below this share of its own start slid away; the start is kept
 # (real_meshes_train's pair 77, partial, any orientation: a classical start 2.2 deg off, score 0.37, slid to 0.0 and
 # 45 deg; keeping the start whenever it scores higher at all cost precision on noisy pairs: median 0.25 -> 0.30 deg
 # on 20 of real_meshes_train's noisy pairs, one at 3.2 deg)
-SELECT_FRACTION = 0.4  # refined candidates are compared by their fitness at this fraction of the threshold
-
-
-def _selection_score(dense: _DenseClouds, t44: np.ndarray, max_distance: float) -> tuple:
-    """``(fitness at 0.4 × max_distance, fitness at max_distance, -RMSE)``, larger is better.
-
-    The tight threshold tells a right answer from a symmetric flip: on partial, noisy shapes the flip
-    often overlaps *more* at ``max_distance`` but lies on the surface less closely (measured on real
-    ModelNet40 pairs at any rotation: all 6 of 30 pairs where the plain fitness chose a 160–180° flip
-    are decided for the truth at 0.3–0.6 × the threshold).
-    """
-    s = scoring.evaluate_registration(dense.src, dense.ref, t44, max_distance, ref_tree=dense.ref_tree)
-    tight = np.count_nonzero(s.distances <= SELECT_FRACTION * max_distance) / len(dense.src)
-    return tight, s.fitness, -s.inlier_rmse
-
-
-def _refine(starts, dense: _DenseClouds | None, max_dist_unit: float, refine: str,
+def _refine(starts, dense: starts_lib.DenseClouds | None, max_dist_unit: float, refine: str,
             refine_options: options_lib.RefineOptions) -> list:
-    """Each :class:`Start` → a :class:`Candidate` (ICP on ``dense`` for ``refine="icp"``, else as it is)."""
+    """Each :class:`~rpmnet_jax.scans.starts.Start` → a :class:`Candidate` (ICP on ``dense`` for ``refine="icp"``, else as it is)."""
     out = []
     for s in starts:
         start = se3.to_homogeneous(s.transform)
@@ -175,9 +116,9 @@ def _refine(starts, dense: _DenseClouds | None, max_dist_unit: float, refine: st
             final, converged, iters = r.transform, r.converged, r.num_iterations
         else:
             final, converged, iters = start, True, 0
-        score = _selection_score(dense, final, max_dist_unit) if dense is not None else (1.0, 1.0, 0.0)
+        score = starts_lib.selection_score(dense, final, max_dist_unit) if dense is not None else (1.0, 1.0, 0.0)
         if refine == "icp":  # an ICP that slid far from a start that lay on the surface: keep the start
-            start_score = _selection_score(dense, start, max_dist_unit)
+            start_score = starts_lib.selection_score(dense, start, max_dist_unit)
             if score[0] < SLID_SHARE * start_score[0]:
                 final, score = start, start_score
         out.append(Candidate(final, score, s.init, s.network_transforms, s.confidence, converged, iters))
@@ -214,29 +155,29 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
                 else DEFAULT_RELATIVE_DISTANCE * pair.scale)
     max_dist_unit = max_dist / pair.scale
     full_ref_tree = cKDTree(pair.ref)  # the caller's whole reference: scoring, information, normals
-    dense = (_dense_clouds(pair, refine_options.points, seed, full_ref_tree) if (refine == "icp" or init != "local")
-             else None)
+    dense = (starts_lib.dense_clouds(pair, refine_options.points, seed, full_ref_tree)
+             if (refine == "icp" or init != "local") else None)
     timings["prepare"] = time.perf_counter() - t_start
 
-    starts = [_local_start(params, pair, cfg, num_iters, timings)] if init == "local" else []
+    starts = [starts_lib.local_start(params, pair, cfg, num_iters, timings)] if init == "local" else []
     if init != "local" and global_options.classical:
         t0 = time.perf_counter()
-        starts += _classical_starts(pair, global_options.classical, seed)
+        starts += starts_lib.classical_starts(pair, global_options.classical, seed)
         timings["classical"] = time.perf_counter() - t0
     if not starts and init in ("classical", "global"):  # no hypothesis: the clouds as they lie
-        starts.append(Start("identity", np.eye(4)[None, :3], 0.0, np.eye(4)))
+        starts.append(starts_lib.Start("identity", np.eye(4)[None, :3], 0.0, np.eye(4)))
     t0 = time.perf_counter()
     candidates = _refine(starts, dense, max_dist_unit, refine, refine_options)
     timings["refine"] += time.perf_counter() - t0
     if init == "auto" and _needs_network(candidates, global_options):
-        local = [_local_start(params, pair, cfg, num_iters, timings)]
+        local = [starts_lib.local_start(params, pair, cfg, num_iters, timings)]
         t0 = time.perf_counter()
         candidates += _refine(local, dense, max_dist_unit, refine, refine_options)
         timings["refine"] += time.perf_counter() - t0
     best_fitness = max((c.score[1] for c in candidates), default=0.0)
     if init == "global" or (init == "auto" and best_fitness < global_options.auto_fitness):
         t0 = time.perf_counter()
-        screened = _screen_hypotheses(params, pair, dense, cfg, global_options, max_dist_unit, seed)
+        screened = starts_lib.screen_hypotheses(params, pair, dense, cfg, global_options, max_dist_unit, seed)
         if refine != "icp":  # the network's answers as they are
             screened = [s._replace(transform=s.network_transforms[-1]) for s in screened]
         timings["global"] = time.perf_counter() - t0
@@ -267,17 +208,6 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
                      timings, answers, bool(ambiguous), information)
 
 
-def _local_start(params, pair: prepare.PreparedPair, cfg, num_iters: int, timings: dict) -> Start:
-    """The network once from the identity (the paper's method) as a :class:`Start`; adds its time to
-    ``timings["network"]``."""
-    t0 = time.perf_counter()
-    reg = registration.jitted(cfg, int(num_iters))(params, pair.src6, pair.ref6)
-    perm = np.asarray(reg.perm_matrices[-1, 0])
-    net_ts = np.asarray(reg.transforms[:, 0], np.float64)
-    timings["network"] += time.perf_counter() - t0
-    return Start("local", net_ts, float(confidence(perm)), net_ts[-1])
-
-
 def _needs_network(candidates: list, opts: options_lib.GlobalOptions) -> bool:
     """``init="auto"`` runs the network when the best refined classical candidate (by selection score) has a
     fitness below ``opts.network_fitness`` (always at 1), or is ambiguous (a flip scores close to it: the
@@ -294,7 +224,7 @@ def _is_ambiguous(distinct: list) -> bool:
     return len(distinct) > 1 and distinct[1].score[0] >= AMBIGUITY_SHARE * distinct[0].score[0] > 0
 
 
-def _icp(dense: _DenseClouds, start: np.ndarray, max_dist_unit: float, **icp_kwargs) -> refine_lib.Refinement:
+def _icp(dense: starts_lib.DenseClouds, start: np.ndarray, max_dist_unit: float, **icp_kwargs) -> refine_lib.Refinement:
     """:func:`rpmnet_jax.scans.refine.point_to_plane_icp` from ``start (4, 4)`` on the dense samples."""
     return refine_lib.point_to_plane_icp(dense.src, dense.ref, dense.ref_normals, start, max_dist_unit,
                                          src_normals=dense.src_normals, ref_tree=dense.ref_tree, **icp_kwargs)
@@ -303,7 +233,7 @@ def _icp(dense: _DenseClouds, start: np.ndarray, max_dist_unit: float, **icp_kwa
 POLISH_FACTOR = 3  # the winner, if its refinement stopped on max_iterations, continues for this many times as many
 
 
-def _polish(best: Candidate, dense: _DenseClouds, max_dist_unit: float,
+def _polish(best: Candidate, dense: starts_lib.DenseClouds, max_dist_unit: float,
             refine_options: options_lib.RefineOptions) -> Candidate:
     """The winning candidate's refinement continued (``POLISH_FACTOR`` × the iterations per stage) when it had
     not converged: every candidate gets the same short budget for the selection, the answer the whole way
@@ -312,7 +242,7 @@ def _polish(best: Candidate, dense: _DenseClouds, max_dist_unit: float,
     kwargs = refine_options.icp_kwargs()
     kwargs["max_iterations"] = POLISH_FACTOR * kwargs.get("max_iterations", refine_lib.MAX_ITERATIONS)
     r = _icp(dense, best.transform, max_dist_unit, **kwargs)
-    score = _selection_score(dense, r.transform, max_dist_unit)
+    score = starts_lib.selection_score(dense, r.transform, max_dist_unit)
     if score < best.score:  # slid away (a shape that slides along itself): keep the shorter run's answer
         return best
     return best._replace(transform=r.transform, score=score, converged=r.converged,
@@ -348,55 +278,3 @@ def _information(pair: prepare.PreparedPair, transform: np.ndarray, corresponden
         normals = np.zeros_like(pair.ref)
         normals[ref_rows] = normals_lib.normals_at(pair.ref, ref_rows, tree=full_ref_tree)
     return scoring.plane_fit(pair.src, pair.ref, normals, transform, correspondences).information
-
-
-def _screen_hypotheses(params, pair: prepare.PreparedPair, dense: _DenseClouds, cfg,
-                       opts: options_lib.GlobalOptions, max_dist_unit: float, seed: int) -> list:
-    """Runs every rotation hypothesis through ``opts.iters`` network iterations on ``opts.points`` of each
-    cloud (one batched call), polishes each answer with a short ICP on ``opts.polish_points`` source points,
-    and returns the ``opts.top_k`` :class:`Start` s by :func:`_selection_score` (polished), best first. (A
-    network answer a few degrees off scores a low fitness at a tight threshold; the short ICP makes the
-    scores of right answers comparable.)"""
-    starts = global_search.initial_transforms(opts.hypotheses)
-    rng = np.random.default_rng(seed)
-    src = pair.src6[:, prepare.sample_indices(rng, pair.src6.shape[1], opts.points)]
-    ref = pair.ref6[:, prepare.sample_indices(rng, pair.ref6.shape[1], opts.points)]
-    fn = registration.jitted(cfg, int(opts.iters), _transforms_and_confidence, from_starts=True)
-    transforms, confidences = fn(params, src, ref, starts)
-    nets = np.swapaxes(np.asarray(transforms, np.float64), 0, 1)  # (H, I, 3, 4)
-    confidences = np.asarray(confidences, np.float64)
-    few = dense.src[prepare.sample_indices(rng, len(dense.src), opts.polish_points)]
-    polished, scores = [], []
-    for t in nets[:, -1]:
-        r = refine_lib.point_to_plane_icp(few, dense.ref, dense.ref_normals, se3.to_homogeneous(t), max_dist_unit,
-                                          scales=(4.0, 2.0), max_iterations=8, ref_tree=dense.ref_tree)
-        polished.append(r.transform[:3])
-        scores.append(_selection_score(dense._replace(src=few), r.transform, max_dist_unit))
-    order = sorted(range(len(nets)), key=lambda h: scores[h], reverse=True)[:opts.top_k]
-    return [Start("global", nets[h], float(confidences[h]), polished[h]) for h in order]
-
-
-CLASSICAL_KEEP = 0.3  # classical hypotheses with fewer inliers than this share of the best one's are not refined
-
-
-def _classical_starts(pair: prepare.PreparedPair, count: int, seed: int) -> list:
-    """Up to ``count`` FPFH + RANSAC hypotheses on the network's samples (unit-sphere frame, Open3D's recipe)
-    as :class:`Start` s; each hypothesis is its own single iterate, its confidence the share of feature
-    correspondences it brings within the distance."""
-    src, ref = np.asarray(pair.src6[0], np.float64), np.asarray(pair.ref6[0], np.float64)
-    hyp = feature_ransac.from_clouds(src[:, :3], src[:, 3:], ref[:, :3], ref[:, 3:], seed=seed, top_k=count)
-    share = hyp.inliers / max(hyp.num_correspondences, 1)
-    keep = hyp.inliers >= CLASSICAL_KEEP * hyp.inliers.max(initial=0)  # a flip stays; stray samples do not
-    return [Start("classical", t[None, :3], float(c), t) for t, c, k in zip(hyp.transforms, share, keep) if k]
-
-
-def _transforms_and_confidence(reg: registration.Registration):
-    """The network's transforms ``(I, H, 3, 4)`` and confidences ``(H,)`` of a batched run (what the screen
-    keeps: the per-iteration match matrices of every hypothesis are never materialised)."""
-    return reg.transforms, confidence(reg.perm_matrices[-1])
-
-
-def confidence(perm):
-    """Mean inlier mass of match matrices ``perm (..., J, K)`` → ``(...)``: the mean of the row and column
-    sums (NumPy or JAX)."""
-    return 0.5 * (perm.sum(axis=-1).mean(axis=-1) + perm.sum(axis=-2).mean(axis=-1))
