@@ -54,8 +54,8 @@ DEFAULT_RELATIVE_DISTANCE = 0.05
 class Alignment(NamedTuple):
     transform: np.ndarray  # (4, 4): maps source points onto the reference, caller's units
     aligned: np.ndarray  # (N, 3): the caller's source moved by ``transform`` (its NaN rows stay NaN)
-    transforms: np.ndarray  # (I, 4, 4): the network's per-iteration transforms (of the chosen start)
-    confidence: float  # mean inlier mass of the network's last match matrix, in [0, 1]
+    transforms: np.ndarray  # (I, 4, 4): the chosen start's network iterates (a classical start: its hypothesis, I = 1)
+    confidence: float  # the network's mean inlier mass, in [0, 1] (a classical start: its share of inlier correspondences)
     num_points: tuple[int, int]  # points the network saw, source and reference
     fitness: float  # fraction of finite source points with a reference point within max_correspondence_distance
     inlier_rmse: float  # RMS distance of those pairs, caller's units
