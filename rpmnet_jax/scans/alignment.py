@@ -54,8 +54,8 @@ DEFAULT_RELATIVE_DISTANCE = 0.05
 class Alignment(NamedTuple):
     transform: np.ndarray  # (4, 4): maps source points onto the reference, caller's units
     aligned: np.ndarray  # (N, 3): the caller's source moved by ``transform`` (its NaN rows stay NaN)
-    transforms: np.ndarray  # (I, 4, 4): the chosen start's network iterates (a classical start: its hypothesis, I = 1)
-    confidence: float  # the network's mean inlier mass, in [0, 1] (a classical start: its share of inlier correspondences)
+    transforms: np.ndarray  # (I, 4, 4): the chosen start's network iterates (classical start: its hypothesis, I=1)
+    confidence: float  # network's mean inlier mass in [0, 1] (classical start: its share of inlier correspondences)
     num_points: tuple[int, int]  # points the network saw, source and reference
     fitness: float  # fraction of finite source points with a reference point within max_correspondence_distance
     inlier_rmse: float  # RMS distance of those pairs, caller's units
@@ -107,7 +107,8 @@ SLID_SHARE = 0.5  # a refined candidate scoring below this share of its own star
 # on 20 of real_meshes_train's noisy pairs, one at 3.2 deg)
 def _refine(starts, dense: starts_lib.DenseClouds | None, max_dist_unit: float, refine: str,
             refine_options: options_lib.RefineOptions) -> list:
-    """Each :class:`~rpmnet_jax.scans.starts.Start` → a :class:`Candidate` (ICP on ``dense`` for ``refine="icp"``, else as it is)."""
+    """Each :class:`~rpmnet_jax.scans.starts.Start` → a :class:`Candidate` (ICP on ``dense`` for
+    ``refine="icp"``, else as it is)."""
     out = []
     for s in starts:
         start = se3.to_homogeneous(s.transform)
