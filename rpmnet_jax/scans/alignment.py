@@ -160,7 +160,7 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
              if (refine == "icp" or init != "local") else None)
     timings["prepare"] = time.perf_counter() - t_start
 
-    starts = [starts_lib.local_start(params, pair, cfg, num_iters, timings)] if init == "local" else []
+    starts = []
     if init != "local" and global_options.classical:
         t0 = time.perf_counter()
         starts += starts_lib.classical_starts(pair, global_options.classical, seed)
@@ -170,8 +170,10 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     t0 = time.perf_counter()
     candidates = _refine(starts, dense, max_dist_unit, refine, refine_options)
     timings["refine"] += time.perf_counter() - t0
-    if init == "auto" and _needs_network(candidates, global_options):
-        local = [starts_lib.local_start(params, pair, cfg, num_iters, timings)]
+    if init == "local" or (init == "auto" and _needs_network(candidates, global_options)):
+        t0 = time.perf_counter()
+        local = [starts_lib.local_start(params, pair, cfg, num_iters)]
+        timings["network"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         candidates += _refine(local, dense, max_dist_unit, refine, refine_options)
         timings["refine"] += time.perf_counter() - t0

@@ -52,8 +52,8 @@ class GlobalOptions:
 
     ``classical``: how many distinct FPFH + RANSAC hypotheses (:mod:`rpmnet_jax.scans.feature_ransac`,
     rotation-invariant, at least 45° apart) join the candidates of ``auto`` and ``global`` (0: none).
-    ``auto`` refines them first and runs the network from the identity only when none reaches a fitness of
-    ``network_fitness`` or the best is ambiguous (a flip scores close to it).
+    ``auto`` refines them first and runs the network from the identity only when the best one's fitness is
+    below ``network_fitness`` (always at 1) or it is ambiguous (a flip scores close to it).
     The network's global search (``init="global"``, or ``"auto"`` when no candidate reaches a fitness of
     ``auto_fitness``): ``hypotheses``, ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened
     with ``iters`` network iterations on ``points`` per cloud and a short ICP on ``polish_points`` source

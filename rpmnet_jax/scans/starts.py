@@ -5,7 +5,6 @@ refinement and selection use (:func:`dense_clouds`, :func:`selection_score`)."""
 
 from __future__ import annotations
 
-import time
 from typing import NamedTuple
 
 import numpy as np
@@ -77,14 +76,11 @@ def selection_score(dense: DenseClouds, t44: np.ndarray, max_distance: float) ->
     return tight, s.fitness, -s.inlier_rmse
 
 
-def local_start(params, pair: prepare.PreparedPair, cfg, num_iters: int, timings: dict) -> Start:
-    """The network once from the identity (the paper's method) as a :class:`Start`; adds its time to
-    ``timings["network"]``."""
-    t0 = time.perf_counter()
+def local_start(params, pair: prepare.PreparedPair, cfg, num_iters: int) -> Start:
+    """The network once from the identity (the paper's method) as a :class:`Start`."""
     reg = registration.jitted(cfg, int(num_iters))(params, pair.src6, pair.ref6)
     perm = np.asarray(reg.perm_matrices[-1, 0])
     net_ts = np.asarray(reg.transforms[:, 0], np.float64)
-    timings["network"] += time.perf_counter() - t0
     return Start("local", net_ts, float(confidence(perm)), net_ts[-1])
 
 
