@@ -69,6 +69,7 @@ def test_first_step_golden_loss_adam_update_and_descent(tiny_batch):
     assert int(state.step) == 16 and int(state.skipped) == 0
 
 
+@pytest.mark.slow  # compiles the train step with EMA and clipping (~40 s)
 def test_ema_schedule_and_clipping(tiny_batch):
     """EMA after two steps is decay·(decay·p0 + (1-decay)·p0) + (1-decay)·p (by hand); warmup starts at lr 0, so
     the first update is zero; clipping: Adam's first moment is (1-b1)·g·clip/|g| (by hand)."""
@@ -122,6 +123,7 @@ def test_nonfinite_update_is_skipped_and_the_schedule_follows_the_step(tiny_batc
     assert bool(scalars["finite"]) and int(schedule.count) == int(state.step) == 2 and int(state.nonfinite) == 0
 
 
+@pytest.mark.slow  # three short training runs (~60 s)
 def test_resume_matches_uninterrupted_run(tmp_path):
     full = training.train_and_evaluate(tiny_cfg(tmp_path / "full", max_steps=4), progress=False)
     first = training.train_and_evaluate(tiny_cfg(tmp_path / "split", max_steps=2), progress=False)
@@ -323,19 +325,25 @@ def test_four_devices_match_one(tmp_path):
     np.testing.assert_allclose(four["norm"], one["norm"], rtol=1e-4)
 
 
-def test_cli_help_and_bad_flags():
-    run = lambda *a: subprocess.run([sys.executable, "-m", "experiments.train", *a], capture_output=True, text=True,
-                                    cwd=REPO)
-    out = run("--help")
+def test_cli_help_and_bad_flags(capsys):
+    from rpmnet_jax.cli import train as train_cli
+    out = subprocess.run([sys.executable, "-m", "experiments.train", "--help"], capture_output=True, text=True,
+                         cwd=REPO)
     assert out.returncode == 0 and "--max-steps" in out.stdout and "--anneal" in out.stdout
-    out = run("--dataset=noisy")
-    assert out.returncode == 2 and "--data-root" in out.stderr and "--synthetic" in out.stderr
-    out = run("--dataset=jitter", "--synthetic")
-    assert out.returncode == 2 and "invalid choice" in out.stderr
-    out = run("--synthetic", "--features", "xyz,normals")
-    assert out.returncode == 2 and "features" in out.stderr
-    out = run("--data-root", "/nonexistent/modelnet")
-    assert out.returncode == 2 and "does not exist" in out.stderr
+
+    def refused(*argv):
+        with pytest.raises(SystemExit) as e:
+            train_cli.parse_args(list(argv))
+        assert e.value.code == 2
+        return capsys.readouterr().err
+
+    err = refused("--dataset=noisy")
+    assert "--data-root" in err and "--synthetic" in err
+    assert "invalid choice" in refused("--dataset=jitter", "--synthetic")
+    assert "features" in refused("--synthetic", "--features", "xyz,normals")
+    assert "does not exist" in refused("--data-root", "/nonexistent/modelnet")
+    assert "--views-share needs --dataset=partial" in refused("--synthetic", "--views-share", "0.5")
+    assert "--views-share must be in [0, 1]" in refused("--synthetic", "--dataset=partial", "--views-share", "2")
 
 
 _KILLABLE = r"""
@@ -427,5 +435,23 @@ def test_rot_mag_sets_the_training_rotations_only_and_is_kept_on_resume(tmp_path
         train_config.check_and_save(tiny_cfg(tmp_path / "run"))
     saved = json.loads((tmp_path / "run" / "config.json").read_text())
     del saved["rot_mag"]  # a run saved before the setting existed trained at 45 degrees
+    (tmp_path / "run" / "config.json").write_text(json.dumps(saved))
+    train_config.check_and_save(tiny_cfg(tmp_path / "run"))
+
+
+def test_views_share_cuts_training_pairs_only_and_is_kept_on_resume(tmp_path):
+    import json
+    from rpmnet_jax.train import config as train_config
+    from rpmnet_jax.train import loop as train_loop
+    cfg = tiny_cfg(tmp_path / "run", views_share=1.0)
+    train_config.check_and_save(cfg)
+    train_set, val_set = train_loop._datasets(cfg)
+    plain_train, plain_val = train_loop._datasets(tiny_cfg(tmp_path / "plain"))
+    assert not np.array_equal(train_set.get(0)["points_src"], plain_train.get(0)["points_src"])
+    np.testing.assert_array_equal(val_set.get(0)["points_src"], plain_val.get(0)["points_src"])  # the paper's crops
+    with pytest.raises(training.ConfigMismatchError, match="views_share 1.0 there, 0.0 now"):
+        train_config.check_and_save(tiny_cfg(tmp_path / "run"))
+    saved = json.loads((tmp_path / "run" / "config.json").read_text())
+    del saved["views_share"]  # a run saved before the setting existed used the paper's crops only
     (tmp_path / "run" / "config.json").write_text(json.dumps(saved))
     train_config.check_and_save(tiny_cfg(tmp_path / "run"))

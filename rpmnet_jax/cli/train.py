@@ -36,6 +36,9 @@ def parse_args(argv=None) -> training.TrainConfig:
     p.add_argument("--num-points", type=int, default=1024, help="points per full cloud (partial keeps 70%%)")
     p.add_argument("--rot-mag", type=float, default=45.0,
                    help="largest training rotation per Euler axis, degrees (default 45 as the paper; validation stays at 45)")
+    p.add_argument("--views-share", type=float, default=0.0,
+                   help="partial only: share of training pairs cut as camera views with self-occlusion instead of "
+                        "the paper's half-space crop (default 0; validation keeps the paper's crops)")
     p.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate (default 1e-4)")
     p.add_argument("--val-every", type=int, default=1, help="validate every N epochs")
     p.add_argument("--val-limit", type=int, default=None, help="validate on at most N pairs")
@@ -82,6 +85,10 @@ def parse_args(argv=None) -> training.TrainConfig:
         p.error(f"--init-from {a.init_from!r} does not exist")
     if not 0.0 <= a.rot_mag <= 180.0:
         p.error("--rot-mag must be in [0, 180]")
+    if not 0.0 <= a.views_share <= 1.0:
+        p.error("--views-share must be in [0, 1]")
+    if a.views_share and a.dataset != "partial":
+        p.error("--views-share needs --dataset=partial")
     if a.ema_decay is not None and not 0.0 < a.ema_decay < 1.0:
         p.error("--ema-decay must be in (0, 1)")
     if a.batch_size is not None and a.batch_size < 1:
@@ -95,7 +102,8 @@ def parse_args(argv=None) -> training.TrainConfig:
     return training.TrainConfig(
         dataset=a.dataset, data_root=a.data_root, synthetic=a.synthetic, synthetic_train=a.synthetic_train,
         synthetic_test=a.synthetic_test, workdir=a.workdir or os.path.join("runs", a.dataset), epochs=a.epochs,
-        max_steps=a.max_steps, batch_size=a.batch_size, num_points=a.num_points, rot_mag=a.rot_mag, lr=a.lr, val_every=a.val_every,
+        max_steps=a.max_steps, batch_size=a.batch_size, num_points=a.num_points, rot_mag=a.rot_mag,
+        views_share=a.views_share, lr=a.lr, val_every=a.val_every,
         val_limit=a.val_limit, save_every=a.save_every, keep=a.keep, seed=a.seed, init_from=a.init_from,
         lr_schedule=a.lr_schedule, warmup_steps=a.warmup_steps, lr_final=a.lr_final, clip_norm=a.clip_norm,
         ema_decay=a.ema_decay, val_every_steps=a.val_every_steps, model=model_cfg), not a.no_progress, a

@@ -15,6 +15,8 @@ from typing import Callable
 import h5py
 import numpy as np
 
+from rpmnet_jax.data import views as views_lib
+
 PROTOCOLS = ("clean", "noisy", "partial")
 SPLITS = ("train", "val", "test")
 FOLDER = "modelnet40_ply_hdf5_2048"
@@ -144,11 +146,12 @@ def crop(rng: np.random.RandomState, points: np.ndarray, p_keep: float) -> np.nd
 
 def make_pair(points: np.ndarray, protocol: str, new_stream: Callable[[], np.random.RandomState], *,
               deterministic: bool, num_points: int = 1024, rot_mag: float = 45.0, trans_mag: float = 0.5,
-              partial_keep=(0.7, 0.7)) -> dict:
+              partial_keep=(0.7, 0.7), views: bool = False) -> dict:
     """One registration pair from a clean cloud ``points (M, 6)``, following the official pipeline.
 
     ``new_stream()`` is called wherever the official code re-seeds (it may return the same generator when
-    not ``deterministic``, i.e. in training, where the official code never re-seeds).
+    not ``deterministic``, i.e. in training, where the official code never re-seeds). ``views`` (partial only,
+    not official): each cloud keeps what a camera sees (:func:`views.view_pair`) instead of a half-space crop.
     """
     rng = None
     if protocol == "clean":
@@ -165,7 +168,10 @@ def make_pair(points: np.ndarray, protocol: str, new_stream: Callable[[], np.ran
         if protocol == "partial":
             keep = np.asarray(partial_keep, dtype=np.float32)
             rng = new_stream()
-            src, ref = crop(rng, src, keep[0]), crop(rng, ref, keep[1])
+            if views:
+                src, ref = views_lib.view_pair(rng, src, ref)
+            else:
+                src, ref = crop(rng, src, keep[0]), crop(rng, ref, keep[1])
     rng = new_stream()
     igt = euler_transform(rng, rot_mag, trans_mag)
     src = apply_transform(igt, src)
@@ -194,19 +200,26 @@ class ModelNet40:
       protocol: ``clean``, ``noisy`` or ``partial``.
       seed: training randomness; ``None`` draws fresh entropy once. Ignored for ``val``/``test``.
       categories: override the category names to keep (filtered in file order).
+      views_share: ``train`` only, partial only: the share of pairs cut as camera views with self-occlusion
+        (:mod:`views`) instead of the paper's half-space crop (0: the paper's protocol).
 
     ``ds[i]`` → dict of ``points_src (J, 6)``, ``points_ref (K, 6)``, ``transform_gt (3, 4)`` (maps source
     onto reference), ``points_raw``, ``label``, ``idx``; ``ds.get(i, epoch)`` draws training samples of an epoch.
     """
 
     def __init__(self, root, split: str, protocol: str, num_points: int = 1024, rot_mag: float = 45.0,
-                 trans_mag: float = 0.5, partial_keep=(0.7, 0.7), seed: int | None = None, categories=None):
+                 trans_mag: float = 0.5, partial_keep=(0.7, 0.7), seed: int | None = None, categories=None,
+                 views_share: float = 0.0):
         if split not in SPLITS:
             raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
         if protocol not in PROTOCOLS:
             raise ValueError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
         if num_points < 1:
             raise ValueError(f"num_points must be >= 1, got {num_points}")
+        if not 0.0 <= views_share <= 1.0:
+            raise ValueError(f"views_share must be in [0, 1], got {views_share}")
+        if views_share and (split != "train" or protocol != "partial"):
+            raise ValueError(f"views_share applies to partial training pairs only, not to {split} {protocol}")
         points, labels, names = read_split(root, "train" if split == "train" else "test")
         if categories is None:
             categories = names[:20] if split in ("train", "val") else names[20:]
@@ -219,6 +232,7 @@ class ModelNet40:
         self.split, self.protocol = split, protocol
         self.num_points, self.rot_mag, self.trans_mag = num_points, rot_mag, trans_mag
         self.partial_keep = tuple(partial_keep)
+        self.views_share = float(views_share)
         self.seed = int(np.random.SeedSequence().entropy % 2**31) if seed is None else int(seed)
 
     @property
@@ -232,14 +246,16 @@ class ModelNet40:
         """Sample ``idx``; for training, its draw of ``epoch`` seeded by ``draw`` (default ``idx``)."""
         if not 0 <= idx < len(self):
             raise IndexError(f"index {idx} out of range for {len(self)} samples")
+        use_views = False
         if self.deterministic:
             new_stream = lambda: np.random.RandomState(idx)
         else:
             rng = np.random.RandomState([self.seed, int(epoch), idx if draw is None else int(draw)])
             new_stream = lambda: rng
+            use_views = bool(self.views_share) and rng.uniform() < self.views_share
         sample = make_pair(self.points[idx], self.protocol, new_stream, deterministic=self.deterministic,
                            num_points=self.num_points, rot_mag=self.rot_mag, trans_mag=self.trans_mag,
-                           partial_keep=self.partial_keep)
+                           partial_keep=self.partial_keep, views=use_views)
         sample["label"] = self.labels[idx]
         sample["idx"] = np.int32(idx)
         return sample

@@ -19,7 +19,7 @@ class ConfigMismatchError(ValueError):
 
 # What a resumed run must keep, and why: the data, the network, the data order and the optimizer's schedule.
 _FIXED = {"dataset": "the data", "data_root": "the data", "synthetic": "the data", "num_points": "the data",
-          "rot_mag": "the data", "seed": "the data order", "model": "the network", "batch_size": "the data order and the step count",
+          "rot_mag": "the data", "views_share": "the data", "seed": "the data order", "model": "the network", "batch_size": "the data order and the step count",
           "lr": "the schedule", "lr_schedule": "the schedule", "warmup_steps": "the schedule",
           "lr_final": "the schedule", "clip_norm": "the optimizer", "ema_decay": "the optimizer"}
 # With the cosine schedule the run's length is its horizon; a constant schedule can be extended or shortened.
@@ -41,6 +41,7 @@ class TrainConfig:
     batch_size: int | None = None  # None: 8 for partial, 4 for clean/noisy (official README)
     num_points: int = 1024
     rot_mag: float = 45.0  # largest training rotation per Euler axis (degrees); validation stays at 45
+    views_share: float = 0.0  # partial training pairs cut as camera views with self-occlusion (data.views)
     lr: float = 1e-4
     val_every: int = 1  # epochs
     val_limit: int | None = None  # pairs per validation (None: all)
@@ -79,6 +80,8 @@ def _comparable(d: dict, key: str):
         return d.get("batch_size") or default_batch_size(d.get("dataset", "noisy"))
     if key == "rot_mag":  # runs saved before the setting existed trained at the paper's 45 degrees
         return d.get("rot_mag", 45.0)
+    if key == "views_share":  # runs saved before the setting existed used the paper's crops only
+        return d.get("views_share", 0.0)
     return d.get(key)
 
 

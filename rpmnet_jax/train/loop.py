@@ -42,7 +42,8 @@ def _datasets(cfg: TrainConfig):
     if not roots:
         raise FileNotFoundError("no training data: the config names no data root and no synthetic set")
     kw = dict(protocol=cfg.dataset, num_points=cfg.num_points, seed=cfg.seed)
-    sets = [(data.ModelNet40(r, "train", rot_mag=cfg.rot_mag, **kw), data.ModelNet40(r, "val", **kw)) for r in roots]
+    sets = [(data.ModelNet40(r, "train", rot_mag=cfg.rot_mag, views_share=cfg.views_share, **kw),
+             data.ModelNet40(r, "val", **kw)) for r in roots]
     if len(sets) == 1:
         return sets[0]
     return data.Concat(s[0] for s in sets), data.Concat(s[1] for s in sets if len(s[1]))
