@@ -3,6 +3,8 @@
 import contextlib
 import os
 import pathlib
+import shutil
+import tempfile
 
 import jax
 import numpy as np
@@ -13,6 +15,18 @@ from rpmnet_jax.ops import se3
 FIXTURES = pathlib.Path(os.environ.get("RPMNET_FIXTURES",
                                        pathlib.Path(__file__).resolve().parents[2] / "shared" / "fixtures"))
 DATA = FIXTURES.parent / "data"
+
+
+def pytest_configure(config):
+    """One persistent compilation cache per test run (CLI subprocesses included): the tests that build the same
+    computation (the training step, the float64 gradients of a fixture) compile it once."""
+    config._rpmnet_jax_cache = tempfile.mkdtemp(prefix="rpmnet-jax-test-cache-")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = config._rpmnet_jax_cache
+    jax.config.update("jax_compilation_cache_dir", config._rpmnet_jax_cache)
+
+
+def pytest_unconfigure(config):
+    shutil.rmtree(getattr(config, "_rpmnet_jax_cache", ""), ignore_errors=True)
 
 
 def require(path, what: str) -> pathlib.Path:

@@ -25,6 +25,7 @@ def _loss(pool, x, layers, w):
     return jnp.sum(pool(x, layers, 8) * w)
 
 
+@pytest.mark.slow  # float64 compiles of both backward paths (~20 s)
 def test_values_and_gradients_match_autodiff_in_float64():
     with float64():
         x = jax.random.normal(jax.random.PRNGKey(0), (2, 20, 16, 10), jnp.float64)

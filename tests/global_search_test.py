@@ -26,6 +26,7 @@ def test_hypotheses_are_rotations_covering_so3(kind, size, radius):
     assert nearest.max() < radius
 
 
+@pytest.mark.slow  # compiles both register paths (~25 s)
 def test_register_from_identity_equals_register():
     """One hypothesis at the identity is register itself; H hypotheses equal H separate register calls on
     the source moved by each start (rigid motions leave neighbour sets and PPF unchanged)."""

@@ -1,6 +1,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import rpmnet_jax
 from rpmnet_jax import losses, registration
@@ -27,6 +28,7 @@ def test_loss_terms_hand_computed():
     np.testing.assert_allclose(terms["total"], 0.5 * (mae0 + inlier) + inlier, rtol=1e-5)
 
 
+@pytest.mark.slow  # a training-loss gradient compile (~30 s); the parity tests check the full-size gradients
 def test_training_loss_gradient_is_finite_and_nonzero():
     cfg = rpmnet_jax.RPMNetConfig(num_neighbors=8, feature_dim=16)
     params = rpmnet_jax.init_params(jax.random.PRNGKey(0), cfg)

@@ -102,6 +102,7 @@ def test_training_loss_and_gradients(case, fused):
     assert not failures, "\n".join(failures)
 
 
+@pytest.mark.slow  # two more full gradient compiles per case (~50 s)
 def test_gradient_bound_catches_a_wrong_backward(case, monkeypatch):
     """The bound has bite: a GroupNorm backward that drops its ``xhat * mean(g * xhat)`` term, and one gradient
     with its sign flipped, are both reported."""

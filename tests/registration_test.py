@@ -43,6 +43,7 @@ def test_num_iters_override(params):
     assert reg.transforms.shape == (1, 1, 3, 4)
 
 
+@pytest.mark.slow  # eager registration of odd shapes (~25 s)
 def test_tiny_clouds_fewer_points_than_neighbours(params):
     rng = np.random.default_rng(3)
     reg = rpmnet_jax.register(params, random_cloud(rng, 1, 3), random_cloud(rng, 1, 4), SMALL)
@@ -51,6 +52,7 @@ def test_tiny_clouds_fewer_points_than_neighbours(params):
     assert reg.transforms.shape == (3, 1, 3, 4)
 
 
+@pytest.mark.slow  # two eager registrations (~25 s)
 def test_nan_in_one_pair_leaves_others_untouched(params):
     rng = np.random.default_rng(4)
     src, ref = random_cloud(rng, 2, 25), random_cloud(rng, 2, 25)

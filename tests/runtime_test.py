@@ -35,6 +35,7 @@ def _tunables(huge_pages: bool, **env) -> str:
     return out.stdout.split("tunables ", 1)[1].strip()
 
 
+@pytest.mark.slow  # two re-executed interpreters (~20 s)
 def test_training_reexecutes_with_the_tunables_and_the_opt_out_holds():
     if not (sys.platform.startswith("linux") and runtime._thp_available()):
         pytest.skip("transparent huge pages are not available on this machine")
