@@ -95,6 +95,7 @@ def test_ema_schedule_and_clipping(tiny_batch):
     assert float(sched(0)) == 0.0 and float(sched(3)) == pytest.approx(1e-3) and float(sched(10)) == pytest.approx(1e-5)
 
 
+@pytest.mark.slow  # compiles a train step at lr 0 (~30 s)
 def test_init_from_npz_starts_from_those_params(tmp_path):
     from rpmnet_jax.weights import convert
     params = training.create_train_state(jax.random.PRNGKey(7), tiny_cfg("unused")).params
@@ -260,6 +261,7 @@ def _saved_steps(workdir, which="latest"):
     return sorted(int(p.name) for p in folder.iterdir() if p.name.isdigit()) if folder.is_dir() else []
 
 
+@pytest.mark.slow  # a training subprocess, interrupted (~20 s)
 def test_sigint_saves_once_and_each_step_is_validated_once(tmp_path, monkeypatch, caplog):
     """--val-every-steps equal to the epoch (5 steps): step 5 is validated once; Ctrl-C at step 6 saves step 6
     (once) and returns, with the SIGINT handler restored."""
