@@ -3,8 +3,6 @@
 import contextlib
 import os
 import pathlib
-import shutil
-import tempfile
 
 import jax
 import numpy as np
@@ -17,16 +15,32 @@ FIXTURES = pathlib.Path(os.environ.get("RPMNET_FIXTURES",
 DATA = FIXTURES.parent / "data"
 
 
+_CACHE_ENVS = ("JAX_COMPILATION_CACHE_DIR", "RPMNET_COMPILATION_CACHE")  # JAX's, and the one the project's CLIs read
+
+
+@pytest.hookimpl(trylast=True)  # after pytest's tmp_path plugin has set up its folder
 def pytest_configure(config):
-    """One persistent compilation cache per test run (CLI subprocesses included): the tests that build the same
-    computation (the training step, the float64 gradients of a fixture) compile it once."""
-    config._rpmnet_jax_cache = tempfile.mkdtemp(prefix="rpmnet-jax-test-cache-")
-    os.environ["JAX_COMPILATION_CACHE_DIR"] = config._rpmnet_jax_cache
-    jax.config.update("jax_compilation_cache_dir", config._rpmnet_jax_cache)
+    """One persistent compilation cache per test run, the CLI subprocesses' included (never the user's own
+    cache): the tests that build the same computation (the training step, the float64 gradients of a fixture)
+    compile it once. The folder lies in pytest's temporary folder, which pytest prunes."""
+    folder = str(config._tmp_path_factory.getbasetemp() / "xla-cache")
+    config._rpmnet_jax_saved = ({k: os.environ.get(k) for k in _CACHE_ENVS}, jax.config.jax_compilation_cache_dir)
+    for key in _CACHE_ENVS:
+        os.environ[key] = folder
+    jax.config.update("jax_compilation_cache_dir", folder)
 
 
 def pytest_unconfigure(config):
-    shutil.rmtree(getattr(config, "_rpmnet_jax_cache", ""), ignore_errors=True)
+    saved = getattr(config, "_rpmnet_jax_saved", None)
+    if saved is None:
+        return
+    env, setting = saved
+    for key, value in env.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+    jax.config.update("jax_compilation_cache_dir", setting)
 
 
 def require(path, what: str) -> pathlib.Path:

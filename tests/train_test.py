@@ -261,7 +261,7 @@ def _saved_steps(workdir, which="latest"):
     return sorted(int(p.name) for p in folder.iterdir() if p.name.isdigit()) if folder.is_dir() else []
 
 
-@pytest.mark.slow  # a training subprocess, interrupted (~20 s)
+@pytest.mark.slow  # a short training run, interrupted twice (~20 s)
 def test_sigint_saves_once_and_each_step_is_validated_once(tmp_path, monkeypatch, caplog):
     """--val-every-steps equal to the epoch (5 steps): step 5 is validated once; Ctrl-C at step 6 saves step 6
     (once) and returns, with the SIGINT handler restored."""

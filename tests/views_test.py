@@ -63,11 +63,16 @@ def test_view_pairs_keep_shapes_and_the_ground_truth(synthetic_root):
         assert not np.array_equal(s["points_src"], plain.get(i)["points_src"])
 
 
-def test_view_share_mixes_and_is_reproducible(synthetic_root):
+def test_view_share_mixes_and_is_reproducible(synthetic_root, monkeypatch):
     ds = data.ModelNet40(synthetic_root, "train", "partial", seed=0, views_share=0.5)
     again = data.ModelNet40(synthetic_root, "train", "partial", seed=0, views_share=0.5)
     for i in range(3):
         np.testing.assert_array_equal(ds.get(i, epoch=2)["points_src"], again.get(i, epoch=2)["points_src"])
+    cut = []
+    monkeypatch.setattr(views, "view_pair", lambda rng, src, ref: cut.append(1) or (src, ref))
+    for i in range(len(ds)):
+        ds.get(i, epoch=1)
+    assert 0.25 * len(ds) <= len(cut) <= 0.75 * len(ds)  # about half the pairs are views, the rest crops
 
 
 def test_view_share_is_for_partial_training_pairs_only(synthetic_root):

@@ -1,4 +1,4 @@
-"""Views over datasets: the first ``n`` samples, ``n`` spread samples, several datasets one after another."""
+"""Subsets and unions of datasets: the first ``n`` samples, ``n`` spread samples, several datasets one after another."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 
 
 class Head:
-    """The first ``n`` samples of a dataset (a view)."""
+    """The first ``n`` samples of a dataset (a subset, not a copy)."""
 
     def __init__(self, dataset, n: int):
         self.dataset, self.n = dataset, min(int(n), len(dataset))
@@ -21,7 +21,8 @@ class Head:
 
 
 class Spread(Head):
-    """``n`` samples evenly spaced over a dataset (a view): every source of a :class:`Concat` is represented."""
+    """``n`` samples evenly spaced over a dataset (a subset, not a copy): every source of a :class:`Concat` is
+    represented."""
 
     def __getitem__(self, i):
         if not 0 <= i < self.n:

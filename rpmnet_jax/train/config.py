@@ -19,7 +19,8 @@ class ConfigMismatchError(ValueError):
 
 # What a resumed run must keep, and why: the data, the network, the data order and the optimizer's schedule.
 _FIXED = {"dataset": "the data", "data_root": "the data", "synthetic": "the data", "num_points": "the data",
-          "rot_mag": "the data", "views_share": "the data", "seed": "the data order", "model": "the network", "batch_size": "the data order and the step count",
+          "rot_mag": "the data", "views_share": "the data", "seed": "the data order", "model": "the network",
+          "batch_size": "the data order and the step count",
           "lr": "the schedule", "lr_schedule": "the schedule", "warmup_steps": "the schedule",
           "lr_final": "the schedule", "clip_norm": "the optimizer", "ema_decay": "the optimizer"}
 # With the cosine schedule the run's length is its horizon; a constant schedule can be extended or shortened.
