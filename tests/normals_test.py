@@ -56,3 +56,32 @@ def test_each_separate_part_is_oriented():
     caps = d[np.abs(d[:, 2]) > 0.6]
     est = normals.estimate_normals(caps)
     assert np.mean(np.sum(est * caps, axis=1) > 0) > 0.99
+
+
+def _covariances(rng, n):
+    """Symmetric PSD 3×3 matrices ``(n, 3, 3)``: thin plates at any rotation, isotropic blobs, lines, exact planes."""
+    spread = np.concatenate([np.tile([1.0, 0.7, 0.02], (n - 300, 1)), np.ones((100, 3)),
+                             np.tile([1.0, 0.0, 0.0], (100, 1)), np.tile([1.0, 0.5, 0.0], (100, 1))])
+    rot = np.linalg.qr(rng.normal(size=(n, 3, 3)))[0]
+    pts = np.einsum("nkj,nij->nki", rng.normal(size=(n, 16, 3)) * spread[:, None, :], rot)
+    c = pts - pts.mean(axis=1, keepdims=True)
+    return np.einsum("nki,nkj->nij", c, c)
+
+
+def test_least_eigenvectors_solve_the_eigenproblem_as_lapack_does():
+    cov = _covariances(np.random.default_rng(0), 3000)
+    ours = normals.least_eigenvectors(*(cov[:, i, j] for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))))
+    values, vectors = np.linalg.eigh(cov)
+    np.testing.assert_allclose(np.linalg.norm(ours, axis=1), 1.0, atol=1e-12)
+    residual = np.linalg.norm(np.einsum("nij,nj->ni", cov, ours) - values[:, :1] * ours, axis=1)
+    assert np.all(residual <= 1e-12 * values[:, 2])  # an eigenvector of the least eigenvalue, lines included
+    separated = (values[:, 1] - values[:, 0]) > 1e-3 * values[:, 2]
+    np.testing.assert_allclose(np.abs(np.sum(ours * vectors[:, :, 0], axis=1))[separated], 1.0, atol=1e-9)
+
+
+def test_least_eigenvectors_of_diagonal_and_zero_matrices():
+    zero = np.zeros(3)
+    got = normals.least_eigenvectors(np.array([3.0, 1.0, 2.0]), zero, zero, np.array([2.0, 3.0, 1.0]), zero,
+                                     np.array([1.0, 2.0, 3.0]))
+    np.testing.assert_allclose(np.abs(got), [[0, 0, 1], [1, 0, 0], [0, 1, 0]], atol=1e-12)
+    assert np.all(np.isfinite(normals.least_eigenvectors(*np.zeros((6, 2)))))

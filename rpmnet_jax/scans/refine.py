@@ -60,7 +60,7 @@ def _pairs(tree: cKDTree, moved: np.ndarray, max_distance: float, scale: float, 
     nothing of the noise."""
     ceiling = scale * max_distance
     floor = max_distance if scale > 1.0 else FINE_FLOOR * ceiling
-    dist, idx = tree.query(moved, k=neighbours, distance_upper_bound=ceiling)
+    dist, idx = tree.query(moved, k=neighbours, distance_upper_bound=ceiling, workers=-1)
     dist, idx = dist.reshape(len(moved), -1), idx.reshape(len(moved), -1)
     nearest = dist[:, 0] if scale > 1.0 else dist[np.isfinite(dist[:, 0]), 0]  # fine: the overlap's own
     gate = float(np.clip(GATE_MEDIANS * np.median(nearest), floor, ceiling)) if len(nearest) else ceiling

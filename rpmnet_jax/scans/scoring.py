@@ -39,7 +39,7 @@ def evaluate_registration(src, ref, transform, max_distance: float, ref_tree: cK
         raise ValueError(f"max_distance must be > 0, got {max_distance}")
     moved = se3.apply(t, src)
     tree = ref_tree if ref_tree is not None else cKDTree(ref)
-    dist, idx = tree.query(moved, k=1, distance_upper_bound=max_distance)
+    dist, idx = tree.query(moved, k=1, distance_upper_bound=max_distance, workers=-1)
     inlier = np.isfinite(dist) & (dist <= max_distance)
     n = int(inlier.sum())
     rmse = float(np.sqrt(np.mean(dist[inlier] ** 2))) if n else 0.0
