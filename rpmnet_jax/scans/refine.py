@@ -35,6 +35,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rpmnet_jax.ops import se3
+from rpmnet_jax.scans import scoring
 
 
 class Refinement(NamedTuple):
@@ -60,7 +61,8 @@ def _pairs(tree: cKDTree, moved: np.ndarray, max_distance: float, scale: float, 
     nothing of the noise."""
     ceiling = scale * max_distance
     floor = max_distance if scale > 1.0 else FINE_FLOOR * ceiling
-    dist, idx = tree.query(moved, k=neighbours, distance_upper_bound=ceiling, workers=-1)
+    dist, idx = tree.query(moved, k=neighbours, distance_upper_bound=ceiling,
+                           workers=scoring.query_workers(len(moved)))
     dist, idx = dist.reshape(len(moved), -1), idx.reshape(len(moved), -1)
     nearest = dist[:, 0] if scale > 1.0 else dist[np.isfinite(dist[:, 0]), 0]  # fine: the overlap's own
     gate = float(np.clip(GATE_MEDIANS * np.median(nearest), floor, ceiling)) if len(nearest) else ceiling
