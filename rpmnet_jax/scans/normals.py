@@ -77,14 +77,14 @@ def least_eigenvectors(a00, a01, a02, a11, a12, a22) -> np.ndarray:
     det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
     half_det = np.clip(det / (2.0 * np.where(p > 0, p, 1.0) ** 3), -1.0, 1.0)
     least = q + 2.0 * p * np.cos(np.arccos(half_det) / 3.0 + 2.0 * np.pi / 3.0)
-    r0 = (a00 - least, a01, a02)
-    r1 = (a01, a11 - least, a12)
-    r2 = (a02, a12, a22 - least)
-    crosses = np.stack([np.stack(_cross(u, v)) for u, v in ((r0, r1), (r0, r2), (r1, r2))])  # (3 pairs, 3, R)
-    norms = np.einsum("pcr,pcr->pr", crosses, crosses)
+    r0 = np.stack([a00 - least, a01, a02], axis=1)  # the rows of A - λ I, (R, 3) each
+    r1 = np.stack([a01, a11 - least, a12], axis=1)
+    r2 = np.stack([a02, a12, a22 - least], axis=1)
+    crosses = np.stack([np.cross(r0, r1), np.cross(r0, r2), np.cross(r1, r2)])  # (3 pairs, R, 3)
+    norms = np.einsum("prc,prc->pr", crosses, crosses)
     best = np.argmax(norms, axis=0)
     cols = np.arange(a.shape[1])
-    vec = crosses[best, :, cols]  # (R, 3)
+    vec = crosses[best, cols]  # (R, 3)
     best_norm = norms[best, cols]
     out = vec / np.sqrt(np.where(best_norm > 0, best_norm, 1.0))[:, None]
     bad = np.flatnonzero(best_norm < _DEGENERATE)
@@ -92,10 +92,6 @@ def least_eigenvectors(a00, a01, a02, a11, a12, a22) -> np.ndarray:
         m = np.stack([a00, a01, a02, a01, a11, a12, a02, a12, a22], axis=-1)[bad].reshape(-1, 3, 3)
         out[bad] = np.linalg.eigh(m)[1][:, :, 0]
     return out
-
-
-def _cross(u, v):
-    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
 
 
 def _graph(n: int, idx: np.ndarray, weights: np.ndarray) -> sparse.csr_matrix:
