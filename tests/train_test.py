@@ -427,7 +427,7 @@ def test_rot_mag_sets_the_training_rotations_only_and_is_kept_on_resume(tmp_path
     from rpmnet_jax.train import loop as train_loop
     cfg = tiny_cfg(tmp_path / "run", rot_mag=180.0)
     train_config.check_and_save(cfg)
-    train_set, val_set = train_loop._datasets(cfg)
+    train_set, val_set = train_loop.datasets(cfg)
     angle = lambda s: float(se3.rotation_angle_deg(s["transform_gt"][:, :3]))
     train_angles = [angle(train_set.get(i)) for i in range(len(train_set))]
     val_angles = [angle(val_set.get(i)) for i in range(len(val_set))]
@@ -447,8 +447,8 @@ def test_views_share_cuts_training_pairs_only_and_is_kept_on_resume(tmp_path):
     from rpmnet_jax.train import loop as train_loop
     cfg = tiny_cfg(tmp_path / "run", views_share=1.0)
     train_config.check_and_save(cfg)
-    train_set, val_set = train_loop._datasets(cfg)
-    plain_train, plain_val = train_loop._datasets(tiny_cfg(tmp_path / "plain"))
+    train_set, val_set = train_loop.datasets(cfg)
+    plain_train, plain_val = train_loop.datasets(tiny_cfg(tmp_path / "plain"))
     assert not np.array_equal(train_set.get(0)["points_src"], plain_train.get(0)["points_src"])
     np.testing.assert_array_equal(val_set.get(0)["points_src"], plain_val.get(0)["points_src"])  # the paper's crops
     with pytest.raises(training.ConfigMismatchError, match="views_share 1.0 there, 0.0 now"):

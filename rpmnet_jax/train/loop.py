@@ -28,7 +28,7 @@ from rpmnet_jax.train.step import create_train_state, make_eval_fn, make_train_s
 log = logging.getLogger("rpmnet_jax.train")
 
 
-def _datasets(cfg: TrainConfig):
+def datasets(cfg: TrainConfig):
     """Train/val sets: the synthetic set and/or every folder of ``cfg.data_root`` (comma-separated)."""
     roots = [r for r in (cfg.data_root or "").split(",") if r]
     if cfg.synthetic:
@@ -113,7 +113,7 @@ class _Run:
     def __init__(self, cfg: TrainConfig):
         self.cfg = cfg
         init = self._init_params()  # first: a bad --init-from fails before anything is written
-        self.train_set, self.val_set = _datasets(cfg)
+        self.train_set, self.val_set = datasets(cfg)
         self.par = Parallel()
         self.bs = cfg.resolved_batch_size
         if self.bs % self.par.size:
