@@ -70,6 +70,31 @@ def read_split(root, subset: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
 
 # --- the official transforms, as functions of an explicit legacy RandomState -------------------------
 
+def write_split(folder, subset: str, points: np.ndarray, labels: np.ndarray, compress: bool = False) -> str:
+    """Writes ``points (N, P, 6)`` (xyz + normals, stored in their dtype) and ``labels (N,)`` as
+    ``folder/ply_data_{subset}0.h5`` and its ``{subset}_files.txt`` (what :func:`read_split` reads);
+    ``compress``: gzip with byte shuffle. Returns the h5 path."""
+    folder = os.fspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    fname = f"ply_data_{subset}0.h5"
+    tmp = os.path.join(folder, fname + ".tmp")
+    opts = dict(compression="gzip", shuffle=True) if compress else {}
+    with h5py.File(tmp, "w") as h5:
+        h5.create_dataset("data", data=points[..., :3], **opts)
+        h5.create_dataset("normal", data=points[..., 3:], **opts)
+        h5.create_dataset("label", data=np.asarray(labels)[:, None].astype(np.uint8))
+    os.replace(tmp, os.path.join(folder, fname))
+    with open(os.path.join(folder, f"{subset}_files.txt"), "w") as f:
+        f.write(f"data/{FOLDER}/{fname}\n")
+    return os.path.join(folder, fname)
+
+
+def write_shape_names(folder, names) -> None:
+    """``folder/shape_names.txt``: the category names, a line each (written last, it marks a folder complete)."""
+    with open(os.path.join(os.fspath(folder), "shape_names.txt"), "w") as f:
+        f.write("\n".join(names) + "\n")
+
+
 def euler_transform(rng: np.random.RandomState, rot_mag: float, trans_mag: float) -> np.ndarray:
     """Random ``(3, 4)`` float32 transform: Euler angles up to ``rot_mag`` degrees, translation ±trans_mag."""
     ax, ay, az = (rng.uniform() * np.pi * rot_mag / 180.0 for _ in range(3))

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import os
 
-import h5py
 import numpy as np
 
+from rpmnet_jax.data import modelnet40
 from rpmnet_jax.ops import se3
 
 FAMILIES = ("superquadric", "box", "cylinder", "torus", "table")
@@ -144,20 +144,10 @@ def make_split(num: int, seed: int, n: int = 2048) -> tuple[np.ndarray, np.ndarr
 def write_dataset(out_dir, num_train: int = 400, num_test: int = 100, seed: int = 0, n: int = 2048) -> str:
     """Writes a ModelNet40-format folder ``out_dir/modelnet40_ply_hdf5_2048``; returns its path."""
     folder = os.path.join(os.fspath(out_dir), "modelnet40_ply_hdf5_2048")
-    os.makedirs(folder, exist_ok=True)
     for subset, num, sub_seed in (("train", num_train, seed * 2 + 1), ("test", num_test, seed * 2 + 2)):
         clouds, labels = make_split(num, sub_seed, n)
-        fname = f"ply_data_{subset}0.h5"
-        tmp = os.path.join(folder, fname + ".tmp")
-        with h5py.File(tmp, "w") as h5:
-            h5["data"] = clouds[..., :3]
-            h5["normal"] = clouds[..., 3:]
-            h5["label"] = labels[:, None].astype(np.uint8)
-        os.replace(tmp, os.path.join(folder, fname))
-        with open(os.path.join(folder, f"{subset}_files.txt"), "w") as f:
-            f.write(f"data/modelnet40_ply_hdf5_2048/{fname}\n")
-    with open(os.path.join(folder, "shape_names.txt"), "w") as f:
-        f.write("\n".join(CATEGORY_NAMES) + "\n")
+        modelnet40.write_split(folder, subset, clouds, labels)
+    modelnet40.write_shape_names(folder, CATEGORY_NAMES)
     return folder
 
 
