@@ -6,8 +6,9 @@
 #   experiments/gpu_train.sh [--tiny]        # there; carry runs/pack with the checkout
 #
 # Settings (environment): PACK (runs/pack), INIT (the state to start from; default the newest
-# experiments/campaign/v*_step*.npz by its number), MINUTES (9: SIGTERM then, which saves and stops), BATCH (8),
-# LR (3e-4, constant), SEED (0), VAL_EVERY (500 steps), EXTRA (more experiments.train flags).
+# experiments/campaign/v*_step*.npz by its number), MINUTES (8: SIGTERM then, which saves and stops; the export
+# after it takes ~30 s, inside a 10-minute call), BATCH (8), LR (3e-4, constant), SEED (0), VAL_EVERY (500
+# steps), EXTRA (more experiments.train flags).
 # Writes to $OUT (else ${TMPDIR:-/tmp}/rpmnet_gpu_train): params_best.npz (EMA params of the best checkpoint by
 # validation Chamfer distance on the pack's validation shapes, a guide: they are 1,280-point copies, not the
 # CPU validation set), params_latest.npz (EMA params of the last step), config.json, train.log, summary.json
@@ -20,12 +21,12 @@ tiny=0
 case "${1:-}" in
     --tiny) tiny=1 ;;
     "") ;;
-    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
     *) echo "gpu_train: unknown argument $1 (see --help)" >&2; exit 2 ;;
 esac
 pack=${PACK:-runs/pack}
 init=${INIT:-$(ls experiments/campaign/v*_step*.npz 2>/dev/null | sort -V | tail -1)}
-minutes=${MINUTES:-9}
+minutes=${MINUTES:-8}
 out=${OUT:-${TMPDIR:-/tmp}/rpmnet_gpu_train}
 work=$(mktemp -d "${TMPDIR:-/tmp}/rpmnet_gpu_work.XXXXXX")
 roots=$(ls -d "$pack"/*/ 2>/dev/null | sed 's:/$::' | paste -sd, -)
