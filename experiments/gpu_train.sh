@@ -21,7 +21,7 @@ tiny=0
 case "${1:-}" in
     --tiny) tiny=1 ;;
     "") ;;
-    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
     *) echo "gpu_train: unknown argument $1 (see --help)" >&2; exit 2 ;;
 esac
 pack=${PACK:-runs/pack}
