@@ -153,3 +153,19 @@ def test_open3d_recipes_register_a_large_rotation_precisely(method):
     gt = np.concatenate([rot, trans[:, None]], axis=1)[None]
     m = metrics.registration_metrics(pred[:, -1], gt, src[None], ref[None], src[None])
     assert m["err_r_deg"][0] < 1.0 and m["err_t"][0] < 0.01
+
+
+@pytest.mark.parametrize("method", protocol.NETWORK_METHODS)
+def test_every_network_method_reads_the_checkpoint(tiny_root, tmp_path, capsys, method):
+    """--checkpoint reaches every method that runs the network (network_icp once silently used the default)."""
+    missing = tmp_path / "missing.npz"
+    rc = eval_cli.main(["--dataset=partial", "--data-root", tiny_root, "--checkpoint", str(missing),
+                        "--methods", method, "--num-points", str(NUM_POINTS), "--no-progress",
+                        "--output", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "missing.npz" in err and len(err.strip().splitlines()) == 1
+
+
+def test_network_methods_are_the_methods_that_use_params():
+    assert set(protocol.NETWORK_METHODS) <= set(protocol.METHODS)
+    assert set(protocol.PIPELINES) - set(protocol.NETWORK_METHODS) == {"classical_icp"}

@@ -69,7 +69,7 @@ def main(argv=None) -> int:
         unknown = [m for m in names if m not in protocol.METHODS]
         if unknown:
             raise ValueError(f"unknown methods {unknown}; choose from {','.join(protocol.METHODS)}")
-        params = loading.load_params(a.checkpoint) if any(m.startswith("rpmnet") for m in names) else None
+        params = loading.load_params(a.checkpoint) if any(m in protocol.NETWORK_METHODS for m in names) else None
     except (ValueError, FileNotFoundError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

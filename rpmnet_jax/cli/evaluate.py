@@ -80,7 +80,7 @@ def main(argv=None) -> int:
         if len(ds) == 0:
             raise ValueError(f"the {a.split} split of {root} is empty (the real subset has no test-category "
                              "shapes: use --split val)")
-        params = loading.load_params(a.checkpoint) if any(m.startswith("rpmnet") for m in methods) else None
+        params = loading.load_params(a.checkpoint) if any(m in protocol.NETWORK_METHODS for m in methods) else None
         file_t = None
         if a.transforms_file:
             file_t = np.load(a.transforms_file)

@@ -27,6 +27,8 @@ PIPELINES = {"rpmnet_icp": dict(init="local", refine="icp"), "rpmnet_auto": dict
              "rpmnet_global": dict(init="global", refine="icp"),
              "network_icp": dict(init="global", refine="icp", global_options=GlobalOptions(classical=0)),
              "classical_icp": dict(init="classical", refine="icp")}
+# the methods that run the network (and so take a checkpoint's params); classical_icp and the baselines do not
+NETWORK_METHODS = ("rpmnet", "rpmnet_icp", "rpmnet_auto", "rpmnet_global", "network_icp")
 CSV_COLUMNS = ("idx", "label", "r_mse", "r_mae", "t_mse", "t_mae", "err_r_deg", "err_t", "chamfer_dist")
 
 
