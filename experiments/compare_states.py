@@ -38,6 +38,9 @@ def main(argv=None) -> int:
                 raise ValueError(f"no such file {path!r}")
         idx_a, err_a = paired.read_errors(a.csv_a, a.column)
         idx_b, err_b = paired.read_errors(a.csv_b, a.column)
+        for path, idx in ((a.csv_a, idx_a), (a.csv_b, idx_b)):
+            if len(set(idx.tolist())) != len(idx):
+                raise ValueError(f"{path}: a pair ('idx') appears more than once")
         if sorted(idx_a.tolist()) != sorted(idx_b.tolist()):
             raise ValueError("the two files hold different pairs (their 'idx' columns differ); "
                              "evaluate both models with the same --dataset, --split, --data-root and --limit")

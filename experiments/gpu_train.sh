@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
-# The campaign's GPU run: train from the shipped model (or another state) for a fixed wall time on a machine that has only
-# this checkout (no ../shared, no network), and bring back the params.
+# The campaign's GPU run: train from the shipped model (or another state) for a fixed wall time on a machine
+# that has only this checkout (no ../shared, no network), and bring back the params.
 #
 #   python -m experiments.pack_training_data --data-root ../shared/data/modelnet40_real_subset,../shared/data/real_meshes_train --out runs/pack
 #   experiments/gpu_train.sh [--tiny]        # there; carry runs/pack with the checkout
 #
 # Settings (environment): PACK (runs/pack), INIT (the state to start from; default the shipped model,
-# rpmnet_jax/weights/rpmnet_default.npz: no later campaign state beats it), MINUTES (8: SIGTERM then, which saves and stops; the export
-# after it takes ~30 s, inside a 10-minute call), BATCH (8), LR (3e-4, constant), SEED (0), VAL_EVERY (500
-# steps), EXTRA (more experiments.train flags).
+# rpmnet_jax/weights/rpmnet_default.npz: no later campaign state beats it), MINUTES (8: SIGTERM then, which
+# saves and stops; the export after it takes ~30 s, inside a 10-minute call), BATCH (8), LR (3e-4, constant),
+# SEED (0), VAL_EVERY (500 steps), EXTRA (more experiments.train flags).
 # Writes to $OUT (else ${TMPDIR:-/tmp}/rpmnet_gpu_train): params_best.npz (EMA params of the best checkpoint by
 # validation Chamfer distance on the pack's validation shapes, a guide: they are 1,280-point copies, not the
 # CPU validation set), params_latest.npz (EMA params of the last step), config.json, train.log, summary.json

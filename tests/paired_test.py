@@ -89,3 +89,11 @@ def test_cli_errors_are_one_line(tmp_path, capsys, case, why):
     assert compare_states.main([fa, fb, *extra]) == 2
     err = capsys.readouterr().err
     assert why in err and len(err.strip().splitlines()) == 1
+
+
+def test_cli_rejects_a_repeated_pair(tmp_path, capsys):
+    fa = _write_csv(tmp_path / "a.csv", [0, 1, 1], np.ones(3))
+    fb = _write_csv(tmp_path / "b.csv", [0, 1, 1], np.ones(3))
+    assert compare_states.main([fa, fb]) == 2
+    err = capsys.readouterr().err
+    assert "more than once" in err and len(err.strip().splitlines()) == 1
