@@ -27,7 +27,7 @@ def main() -> None:
     bench_utils.pin(a.threads)
     import numpy as np
     from rpmnet_jax import data
-    from rpmnet_jax.scans import alignment
+    from rpmnet_jax.pairwise import alignment, candidates
     from rpmnet_jax.weights import loading
 
     ds = data.ModelNet40(a.data_root, "val", a.dataset, num_points=a.points, rot_mag=a.rot_mag)
@@ -39,12 +39,12 @@ def main() -> None:
                               num_points=max(len(s), len(r)))
         if i > 0:
             runs.append(res)
-    stages = sorted(runs[0].timings)
+    stages = sorted({k for x in runs for k in x.timings})
     record = {"task": "align_default", "dataset": a.dataset, "points": a.points, "pairs": len(runs),
               "rot_mag": a.rot_mag,
               "seconds_median": float(np.median([x.timings["total"] for x in runs])),
               "seconds_max": float(np.max([x.timings["total"] for x in runs])),
-              "stages_median": {k: float(np.median([x.timings[k] for x in runs])) for k in stages},
+              "stages_median": {k: float(np.median([x.timings.get(k, 0.0) for x in runs])) for k in stages},
               "starts_won": {k: sum(x.init == k for x in runs) for k in ("local", "classical", "global")}}
     bench_utils.emit({**record, **bench_utils.environment()})
 

@@ -1,5 +1,5 @@
 """How the second-best distinct answer of the default ``align`` scores against the best, on rotationally
-symmetric real shapes and on the ordinary ones: the measurement behind ``alignment.AMBIGUITY_SHARE``.
+symmetric real shapes and on the ordinary ones: the measurement behind ``candidates.AMBIGUITY_SHARE``.
 
     python -m experiments.ambiguity --data-root ../shared/data/modelnet40_real_subset [--rot-mag 180]
         [--stride 5] [--protocols partial,noisy] [--output ambiguity.json]
@@ -25,7 +25,7 @@ SHARES = (0.8, 0.85, 0.9, 0.95)
 
 def _rows(ds, indices, params, group):
     from rpmnet_jax import metrics
-    from rpmnet_jax.scans import alignment
+    from rpmnet_jax.pairwise import alignment, candidates
     out = []
     for i in indices:
         d = ds[int(i)]

@@ -10,9 +10,9 @@ from scipy.spatial.transform import Rotation
 
 import rpmnet_jax
 from rpmnet_jax.cli import register as register_cli
-from rpmnet_jax.scans import cloud_io
+from rpmnet_jax.io import clouds as cloud_io
 from rpmnet_jax.weights import convert
-from rpmnet_jax.scans import normals
+from rpmnet_jax.geometry import normals
 from rpmnet_jax.weights import loading
 from rpmnet_jax.data import synthetic
 
@@ -129,13 +129,13 @@ def test_refine_none_returns_the_network_answer(random_weights):
 def test_an_unconverged_winner_is_refined_further(random_weights):
     """Every candidate gets ``max_iterations`` per stage; the winner, if it stopped there, continues for
     ``POLISH_FACTOR`` × as many, and ends closer (the random-weights network starts it far off)."""
-    from rpmnet_jax.scans import alignment
+    from rpmnet_jax.pairwise import alignment, candidates
     src, src_n = _shape(seed=6, n=900)
     rot = Rotation.from_euler("xyz", [12, -8, 10], degrees=True).as_matrix()
     kw = dict(checkpoint=random_weights, num_points=300, init="local")
     short = rpmnet_jax.RefineOptions(scales=(1.0,), max_iterations=1)
     a = rpmnet_jax.align(src, src @ rot.T, src_n, src_n @ rot.T, refine_options=short, **kw)
-    assert 1 < a.num_iterations <= 1 + alignment.POLISH_FACTOR
+    assert 1 < a.num_iterations <= 1 + candidates.POLISH_FACTOR
     err = lambda t: np.degrees(np.arccos(np.clip((np.trace(t[:3, :3].T @ rot) - 1) / 2, -1, 1)))
     start = a.transforms[-1]
     assert err(a.transform) < err(start)
@@ -158,7 +158,8 @@ def test_pipeline_results_are_scored_by_nearest_neighbours_and_deterministic(ran
     assert a.fitness == pytest.approx(within.mean(), abs=1e-12)
     assert a.inlier_rmse == pytest.approx(np.sqrt(np.mean(nearest[within] ** 2)), rel=1e-9)
     np.testing.assert_array_equal(a.correspondences, np.stack([np.nonzero(within)[0], d.argmin(1)[within]], 1))
-    assert set(a.timings) == {"prepare", "network", "classical", "global", "refine", "score", "total"}
+    assert set(a.timings) == set(a.stages) | {"total"}
+    assert set(a.stages) == {"prepare", "network", "classical", "global", "refine", "score"}
     c = rpmnet_jax.align(src * 3.0, ref, src_n, None, max_correspondence_distance=0.5, **kw)
     assert c.max_correspondence_distance == 0.5
     for bad in (dict(init="everywhere"), dict(refine="gicp"), dict(max_correspondence_distance=-1.0),
@@ -222,7 +223,7 @@ def test_a_stray_far_point_does_not_change_the_answer(random_weights, cloud):
     kw = dict(checkpoint=random_weights, num_iters=2,
               global_options=rpmnet_jax.GlobalOptions(auto_fitness=1.0, network_fitness=1.0))
     clean = rpmnet_jax.align(src, ref, src_n, ref_n, **kw)
-    assert clean.timings["global"] > 0 and clean.timings["classical"] > 0 and clean.timings["network"] > 0
+    assert {"global", "classical", "network"} <= set(clean.stages)
     pts, nrm = (src, src_n) if cloud == "source" else (ref, ref_n)
     stray = pts.mean(0) + 100 * np.linalg.norm(pts - pts.mean(0), axis=1).max() * np.array([0.6, 0.0, 0.8])
     pts, nrm = np.insert(pts, 123, stray, axis=0), np.insert(nrm, 123, [1.0, 0.0, 0.0], axis=0)
@@ -238,7 +239,7 @@ def test_a_stray_far_point_does_not_change_the_answer(random_weights, cloud):
 
 
 def test_deterministic_under_a_seed_and_the_global_screen_follows_it(random_weights):
-    from rpmnet_jax.scans import prepare, starts
+    from rpmnet_jax.pairwise import global_search, prepare
 
     src, src_n = _shape(seed=16, n=500)
     ref, _ = _shape(seed=17, n=500)
@@ -247,10 +248,10 @@ def test_deterministic_under_a_seed_and_the_global_screen_follows_it(random_weig
     np.testing.assert_array_equal(a.transform, b.transform)
     np.testing.assert_array_equal(a.correspondences, b.correspondences)
     pair = prepare.prepare_pair(src, ref, src_n, None, num_points=256)
-    dense = starts.dense_clouds(pair, 5000, 0)
+    dense = prepare.dense_clouds(pair, 5000, 0, prepare.RowNormals(pair.ref, pair.ref_normals))
     params = loading.load_params(random_weights)
     opts = rpmnet_jax.GlobalOptions(points=64)  # fewer than the 256 prepared: the seed picks which
-    screen = lambda seed: np.stack([s.network_transforms for s in starts.screen_hypotheses(
+    screen = lambda seed: np.stack([s.network_transforms for s in global_search.screen_hypotheses(
         params, pair, dense, rpmnet_jax.RPMNetConfig(), opts, 0.05, seed)])
     first = screen(0)
     np.testing.assert_array_equal(screen(0), first)
@@ -261,7 +262,7 @@ def test_plot_without_matplotlib_fails_before_anything_runs(tmp_path, capsys, mo
     """A plain install has no matplotlib: --plot is refused up front (one line naming the extra), nothing is
     computed, printed or written."""
     import sys
-    from rpmnet_jax.scans import alignment
+    from rpmnet_jax.pairwise import alignment, candidates
 
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib raises ImportError
     monkeypatch.setattr(alignment, "align", lambda *a, **k: pytest.fail("align ran"))

@@ -8,8 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from rpmnet_jax.cli import eval_scans
 from rpmnet_jax import metrics
-from rpmnet_jax.evaluation import scan_poses
-from rpmnet_jax.scans import cloud_io
+from rpmnet_jax.io import poses as scan_poses
+from rpmnet_jax.io import clouds as cloud_io
 from rpmnet_jax.data import synthetic
 
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from rpmnet_jax.scans import fpfh
+from rpmnet_jax.geometry import fpfh
 
 from conftest import asymmetric_shape, rotation_about
 

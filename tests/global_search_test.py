@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 import rpmnet_jax
 from conftest import asymmetric_shape, rotation_about, rotation_error_deg
 from rpmnet_jax import registration
-from rpmnet_jax.scans import global_search
+from rpmnet_jax.pairwise import global_search
 from rpmnet_jax.weights import loading
 
 

@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from rpmnet_jax.data import synthetic
-from rpmnet_jax.scans import normals
+from rpmnet_jax.geometry import normals
 
 
 def _shape(label, n=3000, seed=0):

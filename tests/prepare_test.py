@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from rpmnet_jax.data import synthetic
-from rpmnet_jax.scans import prepare
+from rpmnet_jax.geometry import cloud
+from rpmnet_jax.pairwise import prepare
 
 
 def _shape(seed=0, n=800, label=36):
@@ -17,7 +18,7 @@ def test_clean_cloud_reports_the_kept_rows():
     pts[[3, 17]] = np.nan
     nrm[40] = np.inf
     with pytest.warns(UserWarning, match="dropped 3 points"):
-        got, got_n, rows = prepare.clean_cloud("c", pts, nrm)
+        got, got_n, rows = cloud.clean_cloud("c", pts, nrm)
     np.testing.assert_array_equal(rows, [i for i in range(50) if i not in (3, 17, 40)])
     np.testing.assert_array_equal(got, pts[rows])
     np.testing.assert_allclose(got_n, nrm[rows])
@@ -25,7 +26,7 @@ def test_clean_cloud_reports_the_kept_rows():
 
 def test_clean_clouds_keep_their_centroid_and_radius():
     pts, _ = _shape()
-    centre, core = prepare.robust_centre(pts)
+    centre, core = cloud.robust_centre(pts)
     assert core.all()
     np.testing.assert_array_equal(centre, pts.mean(axis=0))
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from conftest import DATA, asymmetric_shape, require, rotation_about, rotation_error_deg
-from rpmnet_jax.scans import refine
+from rpmnet_jax.geometry import icp as refine
 
 
 def _motion(deg, axis, trans):

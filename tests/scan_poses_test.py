@@ -5,8 +5,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from conftest import DATA, require
-from rpmnet_jax.evaluation import scan_poses
-from rpmnet_jax.scans import cloud_io
+from rpmnet_jax.io import poses as scan_poses
+from rpmnet_jax.io import clouds as cloud_io
 
 BUNNY = DATA / "stanford_bunny"
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import rpmnet_jax
-from rpmnet_jax.scans import scoring
+from rpmnet_jax.geometry import scoring
 
 
 def _brute_force(src, ref, t, max_dist):

@@ -11,7 +11,7 @@ import rpmnet_jax
 from rpmnet_jax import data
 from rpmnet_jax.cli import register as register_cli
 from rpmnet_jax.ops import se3
-from rpmnet_jax.scans import alignment
+from rpmnet_jax.pairwise import alignment, candidates
 
 from conftest import DATA, require
 
@@ -39,12 +39,12 @@ def test_ambiguous_on_a_rotationally_symmetric_real_shape(root):
     assert a.ambiguous
     scores = [c.score for c in a.candidates]
     assert len(scores) >= 2 and scores == sorted(scores, reverse=True)
-    assert scores[1] >= alignment.AMBIGUITY_SHARE * scores[0]
+    assert scores[1] >= candidates.AMBIGUITY_SHARE * scores[0]
     np.testing.assert_array_equal(a.candidates[0].transform, a.transform)
     for i, c in enumerate(a.candidates):  # distinct: every pair of answers more than AMBIGUITY_DEG apart
         assert c.transform.shape == (4, 4) and 0 <= c.score <= c.fitness <= 1 and c.inlier_rmse >= 0
         for d in a.candidates[:i]:
-            assert se3.rotation_angle_deg(c.transform[:3, :3] @ d.transform[:3, :3].T) > alignment.AMBIGUITY_DEG
+            assert se3.rotation_angle_deg(c.transform[:3, :3] @ d.transform[:3, :3].T) > candidates.AMBIGUITY_DEG
 
 
 def test_not_ambiguous_on_asymmetric_real_shapes(root):

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import os
 import sys
-import time
 
 import numpy as np
 
@@ -16,19 +15,23 @@ METHODS = ("rpmnet_multiway", "open3d_multiway")
 
 
 def _timed(fn):
-    t0, c0 = time.perf_counter(), time.process_time()
+    """``(fn(), wall seconds, CPU seconds)``."""
+    from rpmnet_jax import stopwatch
+
+    clock = stopwatch.Stopwatch()
     out = fn()
-    return out, time.perf_counter() - t0, time.process_time() - c0
+    return out, clock.elapsed(), clock.cpu_elapsed()
 
 
 def run(a) -> int:
-    from rpmnet_jax.evaluation import baselines, scan_poses
-    from rpmnet_jax.scans import cloud_io, multiway
+    from rpmnet_jax.evaluation import baselines, pose_errors
+    from rpmnet_jax.io import clouds as cloud_io, poses as poses_io
+    from rpmnet_jax.multiway import options as options_lib, scan_alignment
     from rpmnet_jax.weights import loading
 
     try:
         conf = os.path.join(a.scans, a.conf)
-        true = scan_poses.read_poses(conf)
+        true = poses_io.read_poses(conf)
         names = list(true)
         methods = [m for m in a.multiway_methods.split(",") if m]
         unknown = [m for m in methods if m not in METHODS]
@@ -51,13 +54,14 @@ def run(a) -> int:
         return 2
 
     truth = np.stack([true[n] for n in names])
-    fns = {"rpmnet_multiway": lambda: multiway.align_scans(clouds, params=params, seed=a.seed).poses,
+    fns = {"rpmnet_multiway": lambda: scan_alignment.align_scans(
+        clouds, params=params, options=options_lib.ScanOptions(seed=a.seed)).poses,
            "open3d_multiway": lambda: baselines.open3d_multiway(clouds, a.baseline_voxel, seed=a.seed)}
     results = {}
     for m in methods:
         runs = [_timed(fns[m]) for _ in range(a.repeat)]
         poses = runs[-1][0]
-        errors = scan_poses.pose_errors(poses, truth, clouds)
+        errors = pose_errors.pose_errors(poses, truth, clouds)
         results[m] = {"poses": poses, "errors": errors, "seconds": [r[1] for r in runs],
                       "cpu_seconds": [r[2] for r in runs]}
 

@@ -57,11 +57,12 @@ def main(argv=None) -> int:
         return eval_multiway.run(a)
 
     from rpmnet_jax import metrics
-    from rpmnet_jax.evaluation import protocol, scan_poses
-    from rpmnet_jax.scans import alignment, cloud_io, prepare
+    from rpmnet_jax.evaluation import protocol
+    from rpmnet_jax.io import clouds as cloud_io, poses as poses_io
+    from rpmnet_jax.pairwise import alignment, prepare
     from rpmnet_jax.weights import loading
     try:
-        poses = scan_poses.read_poses(os.path.join(a.scans, a.conf))
+        poses = poses_io.read_poses(os.path.join(a.scans, a.conf))
         pairs = [tuple(x.split(":")) for x in a.pairs.split(",") if x]
         if any(len(x) != 2 or x[0] not in poses or x[1] not in poses for x in pairs):
             raise ValueError(f"--pairs must be SRC:REF names from {sorted(poses)}")
@@ -88,7 +89,7 @@ def main(argv=None) -> int:
         src, src_n = cloud_io.read_cloud(os.path.join(a.scans, src_name + ".ply"))
         ref, ref_n = cloud_io.read_cloud(os.path.join(a.scans, ref_name + ".ply"))
         pair = prepare.prepare_pair(src, ref, src_n, ref_n, num_points=a.num_points, seed=a.seed)
-        gt = scan_poses.relative_motion(poses, src_name, ref_name)
+        gt = poses_io.relative_motion(poses, src_name, ref_name)
         size = float(np.linalg.norm(src.max(0) - src.min(0)))
         row = {"pair": f"{src_name}:{ref_name}", "gt_rotation_deg": metrics.transform_errors(gt, np.eye(4))[0],
                "size": size}

@@ -51,9 +51,9 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     from rpmnet_jax.cli import plots
-    from rpmnet_jax.scans import alignment as align_lib
-    from rpmnet_jax.scans import cloud_io
+    from rpmnet_jax.io import clouds as cloud_io
     from rpmnet_jax.ops import se3
+    from rpmnet_jax.pairwise import alignment as align_lib
     from rpmnet_jax.weights import loading
 
     try:
@@ -63,7 +63,7 @@ def main(argv=None) -> int:
         if args.out_candidates and not args.out_candidates.lower().endswith(".json"):
             raise ValueError(f"--out-candidates must name a .json file, got {args.out_candidates}")
         if args.out_aligned:
-            cloud_io._ext(args.out_aligned)
+            cloud_io.check_format(args.out_aligned)
         src, src_n = cloud_io.read_cloud(args.src)
         ref, ref_n = cloud_io.read_cloud(args.ref)
         if args.checkpoint is None and not loading.has_default():

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 import warnings
 
 from rpmnet_jax.cli import runtime
@@ -44,7 +43,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _scan_paths(args) -> list:
-    from rpmnet_jax.scans import cloud_io
+    from rpmnet_jax.io import clouds as cloud_io
 
     paths = []
     for arg in args:
@@ -69,37 +68,40 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     import numpy as np
 
-    from rpmnet_jax.evaluation import scan_poses
+    from rpmnet_jax import stopwatch
+    from rpmnet_jax.geometry import sampling
+    from rpmnet_jax.io import clouds as cloud_io, poses as poses_io
+    from rpmnet_jax.multiway import options as options_lib, scan_alignment
     from rpmnet_jax.ops import se3
-    from rpmnet_jax.scans import cloud_io, multiway, prepare
     from rpmnet_jax.weights import loading
 
-    t0 = time.perf_counter()
+    clock = stopwatch.Stopwatch()
     try:
         if args.plot:
             from rpmnet_jax.cli import plots
             plots.check_available()
         runtime.check_outputs(args.out_poses, args.out_merged, args.plot)
         if args.out_merged:
-            cloud_io._ext(args.out_merged)
+            cloud_io.check_format(args.out_merged)
         if args.merged_voxel is not None and not args.merged_voxel > 0:
             raise ValueError(f"--merged-voxel must be > 0, got {args.merged_voxel}")
         paths = _scan_paths(args.scans)
         clouds = [cloud_io.read_cloud(p) for p in paths]
         if args.checkpoint is None and not loading.has_default():
             raise ValueError("no shipped model in this install; pass --checkpoint")
-        t_read = time.perf_counter() - t0
+        t_read = clock.elapsed()
+        options = options_lib.ScanOptions(voxel_size=args.voxel_size, refine=args.refine, seed=args.seed,
+                                          max_correspondence_distance=args.max_correspondence_distance)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            result = multiway.align_scans([c for c, _ in clouds], [n for _, n in clouds], checkpoint=args.checkpoint,
-                                          voxel_size=args.voxel_size, refine=args.refine, seed=args.seed,
-                                          max_correspondence_distance=args.max_correspondence_distance)
+            result = scan_alignment.align_scans([c for c, _ in clouds], [n for _, n in clouds], options=options,
+                                                checkpoint=args.checkpoint)
     except (ValueError, OSError) as e:  # bad input, or a file that is missing, a folder, or unreadable
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
     names = [os.path.basename(p) for p in paths]
     for w in caught:
-        if not issubclass(w.category, multiway.LeftOutWarning):  # said below, by name
+        if not issubclass(w.category, scan_alignment.LeftOutWarning):  # said below, by name
             print(f"{PROG}: warning: {w.message}", file=sys.stderr)
     placed = [s for s in range(len(paths)) if s not in result.left_out]
     for s in result.left_out:
@@ -114,10 +116,10 @@ def main(argv=None) -> int:
         print(f"rejected edge {names[e.source]} -> {names[e.target]} ({e.stage}, fitness {e.fitness:.2f})")
     stages = "  ".join(f"{k} {v:.2f}" for k, v in result.timings.items() if k != "total")
     print(f"{len(result.edges)} edges, {len(result.rejected)} rejected; voxel {result.voxel_size:.4g}, "
-          f"max_correspondence_distance {result.max_correspondence_distance:.4g}; time {time.perf_counter() - t0:.2f} s "
+          f"max_correspondence_distance {result.max_correspondence_distance:.4g}; time {clock.elapsed():.2f} s "
           f"(read {t_read:.2f}  {stages})")
 
-    scan_poses.write_poses(args.out_poses, [names[s] for s in placed], result.poses[placed])
+    poses_io.write_poses(args.out_poses, [names[s] for s in placed], result.poses[placed])
     finite = {s: np.all(np.isfinite(clouds[s][0]), axis=1) for s in placed}  # rows align_scans dropped too
     moved = {s: clouds[s][0][finite[s]] @ result.poses[s, :3, :3].T + result.poses[s, :3, 3] for s in placed}
     if args.out_merged:
@@ -128,7 +130,7 @@ def main(argv=None) -> int:
             if not np.all(np.isfinite(normals)):
                 normals = None
         if args.merged_voxel:
-            points, normals = prepare.voxel_downsample(points, normals, args.merged_voxel)
+            points, normals = sampling.voxel_downsample(points, normals, args.merged_voxel)
         cloud_io.write_cloud(args.out_merged, points, normals)
     if args.plot:
         from rpmnet_jax.cli import plots

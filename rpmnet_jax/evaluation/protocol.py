@@ -12,8 +12,8 @@ import numpy as np
 
 from rpmnet_jax import data, registration
 from rpmnet_jax.evaluation import baselines
-from rpmnet_jax.scans import alignment
-from rpmnet_jax.scans.options import GlobalOptions
+from rpmnet_jax.pairwise import alignment
+from rpmnet_jax.pairwise.options import GlobalOptions
 from rpmnet_jax.data import loader
 from rpmnet_jax import metrics
 from rpmnet_jax import config as config_lib

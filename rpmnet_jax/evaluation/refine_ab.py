@@ -19,7 +19,8 @@ from rpmnet_jax import config as config_lib
 from rpmnet_jax import metrics, registration
 from rpmnet_jax.evaluation import baselines
 from rpmnet_jax.ops import se3
-from rpmnet_jax.scans import alignment, options, prepare, refine, starts
+from rpmnet_jax.geometry import icp
+from rpmnet_jax.pairwise import alignment, candidates, options, prepare, starts
 
 STARTS = ("perturbed", "rpmnet")
 CSV_COLUMNS = ("idx", "label", "start", "start_err_r", "start_err_t", "ours_err_r", "ours_err_t", "o3d_err_r",
@@ -53,7 +54,8 @@ class Prepared:
         src6, ref6 = np.asarray(src6, np.float64), np.asarray(ref6, np.float64)
         self.pair = prepare.prepare_pair(src6[:, :3], ref6[:, :3], src6[:, 3:6], ref6[:, 3:6],
                                          num_points=max(len(src6), len(ref6)), seed=seed)
-        self.dense = starts.dense_clouds(self.pair, options.RefineOptions().points, seed)
+        self.dense = prepare.dense_clouds(self.pair, options.RefineOptions().points, seed,
+                                          prepare.RowNormals(self.pair.ref, self.pair.ref_normals))
         self.max_dist_unit = alignment.DEFAULT_RELATIVE_DISTANCE
 
     def network_start(self, params, cfg=None, num_iters: int = 5) -> np.ndarray:
@@ -62,12 +64,12 @@ class Prepared:
             params, self.pair.src6, self.pair.ref6)
         return self.pair.to_callers_units(np.asarray(reg.transforms[-1, 0], np.float64))
 
-    def refine(self, start44) -> refine.Refinement:
+    def refine(self, start44) -> icp.Refinement:
         """Our ICP from ``start44 (4, 4)`` (caller's units), through ``align``'s own refinement step → the
         refinement in the caller's units."""
         start = starts.Start("ab", np.zeros((1, 3, 4)), 0.0, _to_unit(self.pair, start44))
-        c = alignment._refine([start], self.dense, self.max_dist_unit, "icp", options.RefineOptions())[0]
-        return refine.Refinement(self.pair.to_callers_units(c.transform[:3]), c.converged, c.num_iterations)
+        c = candidates.refine_starts([start], self.dense, self.max_dist_unit, "icp", options.RefineOptions())[0]
+        return icp.Refinement(self.pair.to_callers_units(c.transform[:3]), c.converged, c.num_iterations)
 
 
 def run(dataset, starts=STARTS, limit: int | None = None, params=None, seed: int = 0, progress: bool = True

@@ -103,6 +103,19 @@ def rotation_angle_deg(rot):
     return np.degrees(np.arctan2(0.5 * np.linalg.norm(skew, axis=-1), cos))
 
 
+def distinct_rotations(rotations, min_angle_deg: float, limit: int | None = None) -> list:
+    """Indices into ``rotations (N, 3, 3)`` (NumPy, ranked best first), greedily: each kept rotation lies at least
+    ``min_angle_deg`` from every better kept one; at most ``limit`` (default all)."""
+    rotations = np.asarray(rotations, np.float64)
+    alive = np.ones(len(rotations), bool)
+    kept: list[int] = []
+    while alive.any() and (limit is None or len(kept) < limit):
+        i = int(np.flatnonzero(alive)[0])
+        kept.append(i)
+        alive &= rotation_angle_deg(rotations @ rotations[i].T) >= min_angle_deg  # all angles to it at once
+    return kept
+
+
 def quaternion_to_matrix(q):
     """Rotation matrices ``(*, 3, 3)`` of quaternions ``q (*, 4)`` ordered ``(w, x, y, z)`` (normalised here)."""
     xp = _xp(q)

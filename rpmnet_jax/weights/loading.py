@@ -2,26 +2,16 @@
 
 from __future__ import annotations
 
-import json
 import os
 
 from rpmnet_jax.weights import convert
 
 WEIGHTS_DIR = os.path.dirname(os.path.abspath(__file__))
 DEFAULT_WEIGHTS = os.path.join(WEIGHTS_DIR, "rpmnet_default.npz")
-DEFAULT_INFO = os.path.join(WEIGHTS_DIR, "rpmnet_default.json")
 
 
 def has_default() -> bool:
     return os.path.isfile(DEFAULT_WEIGHTS)
-
-
-def default_info() -> dict:
-    """How the shipped model was trained (command, data, steps, validation metrics)."""
-    if not os.path.isfile(DEFAULT_INFO):
-        return {}
-    with open(DEFAULT_INFO) as f:
-        return json.load(f)
 
 
 def load_default_params() -> dict:

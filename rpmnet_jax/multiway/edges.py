@@ -2,7 +2,7 @@
 calls, ICP from a start, and the measured quality of each answer.
 
 An edge ``(i, j)`` maps the source scan ``i`` onto the target scan ``j`` (caller's units); its information
-matrix is on the tangent of the right perturbation (:func:`rpmnet_jax.scans.scoring.plane_fit`).
+matrix is on the tangent of the right perturbation (:func:`rpmnet_jax.geometry.scoring.plane_fit`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from scipy.spatial import cKDTree
 
 from rpmnet_jax import registration
 from rpmnet_jax.ops import se3
-from rpmnet_jax.scans import prepare, refine as refine_lib, scoring
+from rpmnet_jax.geometry import icp, sampling, scoring
+from rpmnet_jax.pairwise import prepare
 
 
 class Scan(NamedTuple):
@@ -23,7 +24,6 @@ class Scan(NamedTuple):
     points: np.ndarray  # (V, 3) caller's units
     normals: np.ndarray  # (V, 3)
     tree: cKDTree
-    radius: float  # largest distance of a point from the centroid
 
 
 class Edge(NamedTuple):
@@ -38,9 +38,9 @@ class Edge(NamedTuple):
 
 
 def make_scan(points: np.ndarray, normals: np.ndarray) -> Scan:
+    """A :class:`Scan` of ``points, normals (V, 3)``."""
     points = np.asarray(points, np.float64)
-    return Scan(points, np.asarray(normals, np.float64), cKDTree(points),
-                float(np.max(np.linalg.norm(points - points.mean(axis=0), axis=1))))
+    return Scan(points, np.asarray(normals, np.float64), cKDTree(points))
 
 
 def measure(scans, i: int, j: int, transform: np.ndarray, max_distance: float, stage: str,
@@ -58,21 +58,21 @@ def measure(scans, i: int, j: int, transform: np.ndarray, max_distance: float, s
 
 
 def icp_edge(scans, i: int, j: int, start: np.ndarray, max_distance: float, rng: np.random.Generator, *,
-             num_points: int, scales=(4.0, 2.0, 1.0), max_iterations: int = 30, stage: str = "refine") -> Edge:
+             num_points: int, schedule: icp.Schedule = icp.EDGE, stage: str = "refine") -> Edge:
     """Point-to-plane ICP of up to ``num_points`` random points of scan ``i`` onto scan ``j`` from
-    ``start (4, 4)`` (gates ``scales × max_distance``), measured on all of scan ``i`` (the plane fit within
-    the finest gate)."""
+    ``start (4, 4)`` (``schedule``: gates × ``max_distance``, iterations), measured on all of scan ``i`` (the
+    plane fit within the finest gate)."""
     src, ref = scans[i], scans[j]
-    pick = prepare.sample_indices(rng, len(src.points), num_points)
-    r = refine_lib.point_to_plane_icp(src.points[pick], ref.points, ref.normals, start, max_distance, scales=scales,
-                                      max_iterations=max_iterations, ref_tree=ref.tree)
-    return measure(scans, i, j, r.transform, max_distance, stage, min(1.0, min(scales)) * max_distance)
+    pick = sampling.sample_indices(rng, len(src.points), num_points)
+    r = icp.point_to_plane_icp(src.points[pick], ref.points, ref.normals, start, max_distance,
+                               scales=schedule.scales, max_iterations=schedule.max_iterations, ref_tree=ref.tree)
+    return measure(scans, i, j, r.transform, max_distance, stage, min(1.0, min(schedule.scales)) * max_distance)
 
 
 def network_starts(params, scans, pairs, *, cfg, num_points: int, num_iters: int, batch_size: int, seed: int
                    ) -> np.ndarray:
     """``(P, 4, 4)`` network answers (caller's units) for ``pairs (P, 2)``, each started from the identity
-    after :func:`rpmnet_jax.scans.prepare.prepare_pair` (as :func:`rpmnet_jax.align` prepares a pair); pairs
+    after :func:`rpmnet_jax.pairwise.prepare.prepare_pair` (as :func:`rpmnet_jax.align` prepares a pair); pairs
     of equal sample sizes share batched calls of ``batch_size`` (the last one padded), one compile per size."""
     prepared = [prepare.prepare_pair(scans[i].points, scans[j].points, scans[i].normals, scans[j].normals,
                                      num_points=num_points, seed=seed) for i, j in pairs]

@@ -7,10 +7,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from rpmnet_jax.scans import global_search
-
 INITS = ("auto", "local", "global", "classical")
 REFINES = ("icp", "none")
+HYPOTHESIS_SETS = {"icosahedral": "I", "octahedral": "O"}  # rotation groups of the global search (SciPy names)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -20,7 +19,7 @@ class RefineOptions:
     ``points``: source points sampled from the caller's cloud (the reference: up to ``20 × points``). ``scales``
     (gates as multiples of the correspondence distance, coarse to fine), ``max_iterations`` (per stage) and
     ``tolerance`` (update size that ends a stage): ``None`` keeps
-    :func:`rpmnet_jax.scans.refine.point_to_plane_icp`'s default.
+    :func:`rpmnet_jax.geometry.icp.point_to_plane_icp`'s default.
     """
 
     points: int = 5000
@@ -41,7 +40,7 @@ class RefineOptions:
             raise ValueError(f"RefineOptions.tolerance must be > 0, got {self.tolerance}")
 
     def icp_kwargs(self) -> dict:
-        """The keywords for :func:`rpmnet_jax.scans.refine.point_to_plane_icp` that are set."""
+        """The keywords for :func:`rpmnet_jax.geometry.icp.point_to_plane_icp` that are set."""
         fields = ("scales", "max_iterations", "tolerance")
         return {f: getattr(self, f) for f in fields if getattr(self, f) is not None}
 
@@ -50,7 +49,7 @@ class RefineOptions:
 class GlobalOptions:
     """The orientation-free starts of ``init="auto"`` and ``"global"``.
 
-    ``classical``: how many distinct FPFH + RANSAC hypotheses (:mod:`rpmnet_jax.scans.feature_ransac`,
+    ``classical``: how many distinct FPFH + RANSAC hypotheses (:mod:`rpmnet_jax.geometry.feature_ransac`,
     rotation-invariant, at least 45° apart) join the candidates of ``auto`` and ``global`` (0: none).
     ``auto`` refines them first and runs the network from the identity only when the best one's fitness is
     below ``network_fitness`` (always at 1) or it is ambiguous (a flip scores close to it).
@@ -70,8 +69,8 @@ class GlobalOptions:
     network_fitness: float = 0.6
 
     def __post_init__(self):
-        if self.hypotheses not in global_search.HYPOTHESIS_SETS:
-            raise ValueError(f"GlobalOptions.hypotheses must be one of {sorted(global_search.HYPOTHESIS_SETS)}, "
+        if self.hypotheses not in HYPOTHESIS_SETS:
+            raise ValueError(f"GlobalOptions.hypotheses must be one of {sorted(HYPOTHESIS_SETS)}, "
                              f"got {self.hypotheses!r}")
         if self.top_k < 1:
             raise ValueError(f"GlobalOptions.top_k must be >= 1, got {self.top_k}")

@@ -3,7 +3,7 @@ jitted call (Open3D's ``registration_ransac_based_on_feature_matching``, with it
 and distance checkers, made batch-parallel instead of sequential).
 
 Rotation-invariant features make these hypotheses independent of the starting orientation, which the
-network (trained on rotations of up to 45° per axis) is not; :mod:`rpmnet_jax.scans.alignment` refines them
+network (trained on rotations of up to 45° per axis) is not; :func:`rpmnet_jax.align` refines them
 beside the network's answers and lets its selection score decide.
 """
 
@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rpmnet_jax.ops import procrustes, se3
-from rpmnet_jax.scans import fpfh
+from rpmnet_jax.geometry import fpfh
 
 
 class Hypotheses(NamedTuple):
@@ -45,6 +45,9 @@ def mutual_correspondences(src_features: np.ndarray, ref_features: np.ndarray) -
     mutual = to_src[to_ref] == src_idx
     keep = mutual if mutual.sum() >= 3 else np.ones_like(mutual)
     return np.stack([src_idx[keep], to_ref[keep]], axis=1)
+
+
+MIN_INLIERS = 3  # a hypothesis must bring at least its own sample's correspondences within the distance
 
 
 def _bucket(n: int) -> int:
@@ -121,13 +124,9 @@ def ransac_hypotheses(src: np.ndarray, ref: np.ndarray, correspondences: np.ndar
         transforms[part] = np.asarray(t, np.float64)[:len(part)]
         scores[part] = np.asarray(s)[:len(part)]
     order = np.argsort(-scores, kind="stable")
-    alive = scores >= 3
-    picked: list[int] = []
-    while len(picked) < top_k and alive.any():  # greedy, best first; all angles to a pick at once
-        i = int(order[alive[order]][0])
-        picked.append(i)
-        alive &= se3.rotation_angle_deg(transforms[:, :, :3] @ transforms[i, :, :3].T) >= min_angle_deg
-    out = np.stack([se3.to_homogeneous(transforms[i]) for i in picked]) if picked else np.zeros((0, 4, 4))
+    ranked = order[scores[order] >= MIN_INLIERS]
+    picked = ranked[se3.distinct_rotations(transforms[ranked, :, :3], min_angle_deg, top_k)]
+    out = se3.to_homogeneous(transforms[picked]) if len(picked) else np.zeros((0, 4, 4))
     return Hypotheses(out, scores[picked].astype(np.int64), c)
 
 

@@ -3,7 +3,7 @@
 A node's pose ``P_i (4, 4)`` maps scan ``i``'s points into the anchor scan's frame. An edge ``(i, j)`` with
 ``transform T (4, 4)`` maps the source scan ``i`` onto the target scan ``j``: ``T ≈ P_j⁻¹ P_i``, with an
 information matrix ``(6, 6)`` on the tangent ``ξ = (ω, v)`` of ``T · Exp(ξ)`` (GTSAM's ``Pose3`` order, as
-:func:`rpmnet_jax.scans.scoring.plane_fit` gives it).
+:func:`rpmnet_jax.geometry.scoring.plane_fit` gives it).
 
 The optimisation is GTSAM's (``BetweenFactorPose3`` edges, the anchor held by a tight prior, Levenberg–
 Marquardt): well-kept, exact SE(3) Jacobians and sparse solvers we do not have to write or test. Robustness
@@ -54,6 +54,8 @@ def component(num_nodes: int, pairs, anchor: int) -> np.ndarray:
 
 
 CONSENSUS_SCALE = 5.0  # a tree's poses are unoptimised: edges count as consistent within 5× the error bound
+ANCHOR_SIGMA = 1e-9  # the prior that holds the anchor at the identity (radians and the poses' units)
+INFORMATION_FLOOR = 1e-9  # a singular information (a planar scan slides) gets this share of its trace on the diagonal
 
 
 def _kruskal(num_nodes: int, pairs: np.ndarray, keys) -> np.ndarray:
@@ -144,7 +146,7 @@ def _levenberg_marquardt(gtsam, pairs, transforms, information, edge_ids, initia
     nodes = component(len(initial), pairs[edge_ids], anchor)
     edge_ids = [e for e in edge_ids if nodes[pairs[e, 0]]]
     graph = gtsam.NonlinearFactorGraph()
-    graph.add(gtsam.PriorFactorPose3(anchor, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-9)))
+    graph.add(gtsam.PriorFactorPose3(anchor, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, ANCHOR_SIGMA)))
     for e in edge_ids:
         i, j = pairs[e]
         noise = gtsam.noiseModel.Gaussian.Information(information[e])
@@ -180,7 +182,7 @@ def optimize(num_nodes: int, pairs, transforms, information, anchor: int = 0, *,
     gtsam = _gtsam()
     pairs = _as_pairs(pairs)
     transforms = np.stack([_rigid(t) for t in np.asarray(transforms, np.float64).reshape(-1, 4, 4)])
-    information = np.stack([_symmetric(a) for a in np.asarray(information, np.float64).reshape(-1, 6, 6)])
+    information = np.stack([_positive_definite(a) for a in np.asarray(information, np.float64).reshape(-1, 6, 6)])
     weights = np.ones(len(pairs)) if weights is None else np.asarray(weights, np.float64)
     nodes = component(num_nodes, pairs, anchor)
     used = nodes[pairs[:, 0]] & nodes[pairs[:, 1]]
@@ -189,15 +191,15 @@ def optimize(num_nodes: int, pairs, transforms, information, anchor: int = 0, *,
     solve = lambda ids, start, width=None: _levenberg_marquardt(gtsam, pairs, transforms, information, ids, start,
                                                                  anchor, width, max_iterations)
     if not robust:
-        start = _tree_poses(num_nodes, pairs, transforms, _kruskal(num_nodes, pairs, weights), anchor)
-        return Solution(solve(np.nonzero(used)[0], start), used)
+        return Solution(solve(np.nonzero(used)[0], spanning_tree_poses(num_nodes, pairs, transforms, weights, anchor)),
+                        used)
     tree = consensus_tree(num_nodes, pairs, transforms, information, weights, anchor,
                           threshold=CONSENSUS_SCALE ** 2 * bound, num_trees=num_trees, seed=seed)
     poses = solve(np.nonzero(used)[0], _tree_poses(num_nodes, pairs, transforms, tree, anchor), np.sqrt(bound))
-    kept = None
-    for _ in range(max_rounds):  # a node all of whose edges are rejected is left out (NaN)
+    kept = used  # max_rounds=0: the robust LM's answer, no edge rejected
+    for k in range(max_rounds):  # a node all of whose edges are rejected is left out (NaN)
         now = used & (edge_errors(poses, pairs, transforms, information) <= bound)
-        if kept is not None and np.array_equal(now, kept):
+        if k > 0 and np.array_equal(now, kept):
             break
         kept = now
         poses = solve(np.nonzero(kept)[0], np.where(np.isfinite(poses), poses, _tree_poses(
@@ -206,8 +208,19 @@ def optimize(num_nodes: int, pairs, transforms, information, anchor: int = 0, *,
     return Solution(poses, kept & reached[pairs[:, 0]])
 
 
-def _symmetric(a: np.ndarray) -> np.ndarray:
-    return 0.5 * (a + a.T)
+def _positive_definite(a: np.ndarray) -> np.ndarray:
+    """The symmetric part of ``a (6, 6)``, with ``INFORMATION_FLOOR`` × its trace added to the diagonal when it is
+    singular (GTSAM's Gaussian noise model needs a Cholesky factor); raises ``ValueError`` for an indefinite or
+    zero matrix."""
+    a = 0.5 * (a + a.T)
+    eig = np.linalg.eigvalsh(a)
+    scale = max(float(np.trace(a)), 0.0)
+    if not scale > 0 or eig[0] < -1e-9 * scale:
+        raise ValueError(f"an edge's information matrix must be positive semi-definite and non-zero (eigenvalues "
+                         f"{eig[0]:.3g} .. {eig[-1]:.3g})")
+    if eig[0] <= INFORMATION_FLOOR * scale:
+        a = a + INFORMATION_FLOOR * scale * np.eye(6)
+    return a
 
 
 def _rigid(t: np.ndarray) -> np.ndarray:

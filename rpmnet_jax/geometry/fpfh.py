@@ -70,8 +70,12 @@ def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: cKDTree | N
     """Hybrid search (Open3D's ``KDTreeSearchParamHybrid``): the ``max_nn`` nearest points within ``radius``
     of each point, itself included first. Returns ``(idx (N, max_nn), dist² (N, max_nn), valid (N, max_nn))``;
     invalid slots point at the point itself."""
+    if max_nn < 1:
+        raise ValueError(f"max_nn must be >= 1, got {max_nn}")
     tree = tree or cKDTree(points)
-    dist, idx = tree.query(points, k=min(max_nn, len(points)), distance_upper_bound=radius, workers=-1)
+    k = min(max_nn, len(points))
+    dist, idx = tree.query(points, k=k, distance_upper_bound=radius, workers=-1)
+    dist, idx = dist.reshape(len(points), k), idx.reshape(len(points), k)  # k=1 returns (N,): keep (N, 1)
     valid = np.isfinite(dist)
     own = np.arange(len(points))[:, None]
     return np.where(valid, idx, own), np.where(valid, dist, 0.0) ** 2, valid

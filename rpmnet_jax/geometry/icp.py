@@ -35,7 +35,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rpmnet_jax.ops import se3
-from rpmnet_jax.scans import scoring
+from rpmnet_jax.geometry import cloud, scoring
 
 
 class Refinement(NamedTuple):
@@ -45,6 +45,24 @@ class Refinement(NamedTuple):
 
 
 MAX_ITERATIONS = 20  # per stage, by default
+MIN_PAIRS = 6  # a stage with fewer pairs within its gate cannot fix the 6 degrees of freedom: it ends there
+DAMPING = 1e-9  # added to the normal equations' diagonal, relative to their trace (a sliding direction stays put)
+
+
+class Schedule(NamedTuple):
+    """The gates of an ICP run's stages (multiples of ``max_distance``, coarse to fine) and the iterations per
+    stage. Every schedule of the library is named here."""
+
+    scales: tuple
+    max_iterations: int
+
+
+PAIR = Schedule((4.0, 1.0), MAX_ITERATIONS)  # align's candidates (RefineOptions may change it)
+SCREEN = Schedule((4.0, 2.0), 8)  # the global search's polish: just enough to make hypotheses comparable
+EDGE = Schedule((4.0, 2.0, 1.0), 30)  # a pair of scans from a start that may lie a few degrees off
+NETWORK_EDGE = Schedule((4.0, 2.0, 1.0), 10)  # align_scans: the short ICP after the network, every candidate pair
+REFINE_EDGE = Schedule((1.0, 0.5), 30)  # align_scans' refinement rounds, from close poses (the 1x gate alone
+# biased bunny edges by up to 1.3 deg)
 GATE_MEDIANS = 3.0  # every gate: this many median nearest-neighbour distances, within the stage's bounds
 FINE_FLOOR = 0.25  # a fine stage's gate goes down to this share of its scale (dense, clean range scans)
 
@@ -77,8 +95,8 @@ def tukey_weights(residuals: np.ndarray, scale: float) -> np.ndarray:
 
 
 def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_normals=None,
-                       scales=(4.0, 1.0), max_iterations: int = MAX_ITERATIONS, tolerance: float = 1e-4, neighbours: int = 3,
-                       ref_tree: cKDTree | None = None) -> Refinement:
+                       scales=PAIR.scales, max_iterations: int = PAIR.max_iterations, tolerance: float = 1e-4,
+                       neighbours: int = 3, ref_tree: cKDTree | None = None) -> Refinement:
     """Refines ``init (4, 4)`` moving ``src (N, 3)`` onto ``ref (M, 3)`` with unit ``ref_normals (M, 3)``.
 
     ``src_normals (N, 3)``: unit normals of the source (either sign), for the symmetric planes of the fine
@@ -100,7 +118,7 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
     if src_n is not None and src_n.shape != src.shape:
         raise ValueError(f"src_normals {src_n.shape} do not match src {src.shape}")
     tree = ref_tree if ref_tree is not None else cKDTree(ref)
-    radius = max(float(np.max(np.linalg.norm(src - src.mean(0), axis=1))), 1e-12)
+    radius = max(cloud.radius(src), 1e-12)
     transform = np.array(init, np.float64)
     total, converged = 0, True
     for scale in scales:
@@ -109,7 +127,7 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
             total += 1
             moved = se3.apply(transform, src)
             rows, cols, gate = _pairs(tree, moved, max_distance, scale, neighbours if fine else 1)
-            if len(rows) < 6:
+            if len(rows) < MIN_PAIRS:
                 break  # too few pairs at this gate: keep the transform, try the next stage
             p, q, n = moved[rows], ref[cols], normals[cols]
             agreement = 1.0
@@ -124,7 +142,7 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
             jac = np.concatenate([np.cross(p, n), n], axis=1)  # d r / d (omega, v)
             a = jac.T @ (jac * w[:, None])
             b = -jac.T @ (w * r)
-            a[np.diag_indices(6)] += 1e-9 * max(np.trace(a), 1e-12)
+            a[np.diag_indices(6)] += DAMPING * max(np.trace(a), 1e-12)
             x = np.linalg.solve(a, b)
             step = np.eye(4)
             step[:3, :3] = se3.exp(np.concatenate([x[:3], np.zeros(3)]))[:, :3]  # the rotation of omega

@@ -1,12 +1,16 @@
 """Many scans into one frame: pairwise registration, a robust pose graph on SE(3), a final refinement.
 
-1. prepare: each scan cleaned, voxel-downsampled (``voxel_size``, default 2% of the median scan radius),
-   normals averaged per voxel when given, else estimated (PCA) on the downsampled scan;
+Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
+
+1. prepare: each scan cleaned, voxel-downsampled (``voxel_size``, default 2% of the median robust scan radius,
+   :func:`rpmnet_jax.geometry.cloud.robust_radius`), normals averaged per voxel when given, else estimated (PCA)
+   on the downsampled scan;
 2. network edges: every candidate pair (all pairs up to ``all_pairs_up_to`` scans, else each scan with the
-   next ``window`` in the given order) goes through the network from the identity as in
+   next ``window`` in the given order, the last ones with the first ones: a ring) goes through the network
+   from the identity as in
    :func:`rpmnet_jax.align` (``init="local"``), the pairs in batched calls, then a short point-to-plane ICP;
    pairs with a fitness of at least ``min_fitness`` are edges;
-3. robust pose graph (:mod:`rpmnet_jax.scans.pose_graph`: a consensus spanning tree, GTSAM's
+3. robust pose graph (:mod:`rpmnet_jax.multiway.pose_graph`: a consensus spanning tree, GTSAM's
    Levenberg–Marquardt with a Cauchy kernel, edges beyond the χ² bound rejected) over those edges; wrong
    edges (a flipped pair) are rejected. The largest component of the kept edges is placed;
 4. global: each scan outside it is registered onto the merged, placed scans by :func:`rpmnet_jax.align` with
@@ -25,21 +29,21 @@ overconfident, and the floor is what the χ² bound that rejects edges is measur
 from __future__ import annotations
 
 import itertools
-import time
 import warnings
 from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax import config as config_lib
+from rpmnet_jax import config as config_lib, stopwatch
+from rpmnet_jax.geometry import cloud, icp, normals as normals_lib, sampling, scoring
+from rpmnet_jax.multiway import edges as edges_lib, options as options_lib, pose_graph
 from rpmnet_jax.ops import se3
-from rpmnet_jax.scans import alignment, normals as normals_lib, pair_edges, pose_graph, prepare, scoring
-from rpmnet_jax.scans.pair_edges import Edge
+from rpmnet_jax.pairwise import alignment
 from rpmnet_jax.weights import loading
 
 DEFAULT_RELATIVE_VOXEL = 0.02
-REFINE_SCALES = (1.0, 0.5)  # ICP gates of the refinement (× max_correspondence_distance), from close poses
-NETWORK_ICP_POINTS, NETWORK_ICP_ITERATIONS = 1500, 10  # the short ICP after the network, per candidate pair
+MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
+NETWORK_ICP_POINTS = 1500  # the short ICP after the network (icp.NETWORK_EDGE), source points per candidate pair
 NETWORK_NOISE_SCALE = 3.0  # the network edges' short ICP is coarser: their noise floor is this many times larger
 
 
@@ -54,10 +58,11 @@ class ScanAlignment(NamedTuple):
     left_out: tuple  # indices of scans that overlap none of the placed ones (poses NaN)
     voxel_size: float  # caller's units
     max_correspondence_distance: float  # caller's units
-    timings: dict  # seconds: prepare, network (with the candidates' short ICP), graph, global, refine, total
+    timings: dict  # seconds per stage that ran: prepare, network (with the short ICP), graph, global, refine; total
 
 
 def _candidate_pairs(num_scans: int, all_pairs_up_to: int, window: int) -> list:
+    """``[(i, j), ...]``, ``i < j``: every pair, or each scan with its next ``window`` on the ring of scans."""
     if num_scans <= all_pairs_up_to:
         return list(itertools.combinations(range(num_scans), 2))
     pairs = {tuple(sorted((i, (i + k) % num_scans))) for i in range(num_scans) for k in range(1, window + 1)}
@@ -70,16 +75,16 @@ def _prepare_scans(clouds, normals, voxel_size):
     normals = [None] * len(clouds) if normals is None else list(normals)
     if len(normals) != len(clouds):
         raise ValueError(f"got {len(normals)} normal arrays for {len(clouds)} scans")
-    cleaned = [prepare.clean_cloud(f"scan {i}", c, n)[:2] for i, (c, n) in enumerate(zip(clouds, normals))]
-    radii = [np.max(np.linalg.norm(p - p.mean(axis=0), axis=1)) for p, _ in cleaned]
+    cleaned = [cloud.clean_cloud(f"scan {i}", c, n)[:2] for i, (c, n) in enumerate(zip(clouds, normals))]
+    radii = [cloud.robust_radius(p) for p, _ in cleaned]
     voxel = float(voxel_size) if voxel_size is not None else DEFAULT_RELATIVE_VOXEL * float(np.median(radii))
     scans = []
     for i, (p, n) in enumerate(cleaned):
-        p, n = prepare.voxel_downsample(p, n, voxel)
-        if len(p) < 16:
+        p, n = sampling.voxel_downsample(p, n, voxel)
+        if len(p) < MIN_VOXEL_POINTS:
             raise ValueError(f"scan {i}: {len(p)} points after voxel downsampling at {voxel:.4g}; "
                              "a smaller voxel size is needed")
-        scans.append(pair_edges.make_scan(p, n if n is not None else normals_lib.estimate_normals(p)))
+        scans.append(edges_lib.make_scan(p, n if n is not None else normals_lib.estimate_normals(p)))
     return scans, voxel, float(np.median(radii))
 
 
@@ -116,7 +121,7 @@ def _largest_component(num_scans, edges):
 
 def _merged(scans, poses, placed, voxel):
     points = np.concatenate([se3.apply(poses[s], scans[s].points) for s in placed])
-    points, _ = prepare.voxel_downsample(points, None, voxel)
+    points, _ = sampling.voxel_downsample(points, None, voxel)
     return points, normals_lib.estimate_normals(points)
 
 
@@ -137,7 +142,7 @@ def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed):
                                           a.correspondences).residuals
             if accept(a.fitness, np.median(np.abs(residuals)) if len(residuals) else np.inf):
                 poses[s] = a.transform
-                edges += [pair_edges.measure(scans, s, o, np.linalg.inv(poses[o]) @ poses[s], max_dist, "global")
+                edges += [edges_lib.measure(scans, s, o, np.linalg.inv(poses[o]) @ poses[s], max_dist, "global")
                           for o in placed]
                 placed.append(s)
                 pending.remove(s)
@@ -151,101 +156,87 @@ def _refine_round(scans, poses, placed, max_dist, min_overlap, refine_points, ke
     edges = []
     for i, j in itertools.combinations(sorted(placed), 2):
         predicted = np.linalg.inv(poses[j]) @ poses[i]
-        if pair_edges.predicted_overlap(scans, i, j, predicted, max_dist) >= min_overlap:
-            e = pair_edges.icp_edge(scans, i, j, predicted, max_dist, rng, num_points=refine_points,
-                                    scales=REFINE_SCALES)
+        if edges_lib.predicted_overlap(scans, i, j, predicted, max_dist) >= min_overlap:
+            e = edges_lib.icp_edge(scans, i, j, predicted, max_dist, rng, num_points=refine_points,
+                                   schedule=icp.REFINE_EDGE)
             if keep(e):
                 edges.append(e)
     return edges
 
 
-def align_scans(clouds, normals=None, *, params=None, checkpoint=None, voxel_size: float | None = None,
-                max_correspondence_distance: float | None = None, num_points: int = 256, num_iters: int = 3,
-                batch_size: int = 16, all_pairs_up_to: int = 12, window: int = 3, min_fitness: float = 0.3,
-                min_overlap: float = 0.2, max_plane_residual: float = 0.1, refine: str = "icp",
-                refine_rounds: int = 2, refine_points: int = 3000, edge_sigma_deg: float = 0.25,
-                edge_sigma_fraction: float = 0.1, seed: int = 0,
-                cfg: config_lib.RPMNetConfig | None = None) -> ScanAlignment:
+def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = options_lib.ScanOptions(), params=None,
+                checkpoint=None, cfg: config_lib.RPMNetConfig | None = None) -> ScanAlignment:
     """Registers the scans ``clouds[i] (N_i, 3)`` (normals ``(N_i, 3)`` optional, per scan) into the frame of
-    the first one; see the module docstring. ``max_correspondence_distance`` (caller's units) is the inlier
-    threshold of fitness and overlap, by default 5% of the median scan radius. An edge counts only where the
-    surfaces coincide: median point-to-plane distance of its pairs at most ``max_plane_residual`` × that
-    distance (measured on the bunny: right answers ≤ 0.06×, wrong ones ≥ 0.19×). Deterministic for a ``seed``.
-    """
-    if refine not in ("icp", "none"):
-        raise ValueError(f"refine must be 'icp' or 'none', got {refine!r}")
-    if max_correspondence_distance is not None and not max_correspondence_distance > 0:
-        raise ValueError(f"max_correspondence_distance must be > 0, got {max_correspondence_distance}")
-    t_start = time.perf_counter()
-    timings = dict.fromkeys(("prepare", "network", "graph", "global", "refine"), 0.0)
-    scans, voxel, radius = _prepare_scans(clouds, normals, voxel_size)
-    num_scans = len(scans)
-    max_dist = (float(max_correspondence_distance) if max_correspondence_distance is not None
-                else alignment.DEFAULT_RELATIVE_DISTANCE * radius)
-    noise = (np.radians(edge_sigma_deg), edge_sigma_fraction * max_dist)
-    params = params if params is not None else loading.load_params(checkpoint)
-    cfg = cfg or config_lib.RPMNetConfig()
-    rng = np.random.default_rng(seed)
+    the first one; see the module docstring and :class:`~rpmnet_jax.multiway.options.ScanOptions`.
+    ``checkpoint``: as :func:`rpmnet_jax.align`'s (default the shipped model, or pass ``params``)."""
+    if not isinstance(options, options_lib.ScanOptions):
+        raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")
+    o = options
+    clock = stopwatch.Stopwatch()
+    with clock.stage("prepare"):
+        scans, voxel, radius = _prepare_scans(clouds, normals, o.voxel_size)
+        num_scans = len(scans)
+        max_dist = (float(o.max_correspondence_distance) if o.max_correspondence_distance is not None
+                    else alignment.DEFAULT_RELATIVE_DISTANCE * radius)
+        noise = (np.radians(o.edge_sigma_deg), o.edge_sigma_fraction * max_dist)
+        network_noise = tuple(NETWORK_NOISE_SCALE * x for x in noise)
+        params = params if params is not None else loading.load_params(checkpoint)
+        cfg = cfg or config_lib.RPMNetConfig()
+        rng = np.random.default_rng(o.seed)
 
     def good(e, fitness):
-        return e.fitness >= fitness and e.plane_residual <= max_plane_residual * max_dist
+        return e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
 
-    t = time.perf_counter()
-    timings["prepare"] = t - t_start
+    with clock.stage("network"):  # 2. every candidate pair from the identity, batched, then a short ICP
+        pairs = _candidate_pairs(num_scans, o.all_pairs_up_to, o.window)
+        starts = edges_lib.network_starts(params, scans, pairs, cfg=cfg, num_points=o.num_points,
+                                          num_iters=o.num_iters, batch_size=o.batch_size, seed=o.seed)
+        edges = [edges_lib.icp_edge(scans, i, j, s, max_dist, rng, num_points=NETWORK_ICP_POINTS,
+                                    schedule=icp.NETWORK_EDGE, stage="network")
+                 for (i, j), s in zip(pairs, starts)]
+        edges = [e for e in edges if good(e, o.min_fitness)]
 
-    # 2. network edges: every candidate pair from the identity, batched, then a short ICP
-    pairs = _candidate_pairs(num_scans, all_pairs_up_to, window)
-    starts = pair_edges.network_starts(params, scans, pairs, cfg=cfg, num_points=num_points, num_iters=num_iters,
-                                       batch_size=batch_size, seed=seed)
-    edges = [pair_edges.icp_edge(scans, i, j, s, max_dist, rng, num_points=NETWORK_ICP_POINTS,
-                                 max_iterations=NETWORK_ICP_ITERATIONS, stage="network")
-             for (i, j), s in zip(pairs, starts)]
-    edges = [e for e in edges if good(e, min_fitness)]
-    timings["network"] = time.perf_counter() - t
-    t = time.perf_counter()
-
-    # 3. robust pose graph over them: the largest consistent component is placed
-    rejected = []
+    rejected = []  # 3. robust pose graph over them: the largest consistent component is placed
     poses = np.full((num_scans, 4, 4), np.nan)
     poses[0] = np.eye(4)
     if edges:
-        poses, edges, rejected = _solve(num_scans, edges, _largest_component(num_scans, edges),
-                                        [NETWORK_NOISE_SCALE * x for x in noise], seed)
-    timings["graph"] = time.perf_counter() - t
-    t = time.perf_counter()
+        with clock.stage("graph"):
+            poses, edges, rejected = _solve(num_scans, edges, _largest_component(num_scans, edges), network_noise,
+                                            o.seed)
 
-    # 4. the other scans: global registration onto the merged placed scans
-    poses, global_edges, pending = _place_remaining(
-        scans, poses, params, cfg, voxel, max_dist, seed=seed,
-        accept=lambda fitness, residual: fitness >= min_fitness and residual <= max_plane_residual * max_dist)
-    global_edges = [e for e in global_edges if good(e, min_overlap)]
-    timings["global"] = time.perf_counter() - t
-    t = time.perf_counter()
+    global_edges, pending = [], [s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0])]
+    if pending:  # 4. the other scans: global registration onto the merged placed scans
+        with clock.stage("global"):
+            poses, global_edges, pending = _place_remaining(
+                scans, poses, params, cfg, voxel, max_dist, seed=o.seed,
+                accept=lambda fitness, residual: (fitness >= o.min_fitness
+                                                  and residual <= o.max_plane_residual * max_dist))
+            global_edges = [e for e in global_edges if good(e, o.min_overlap)]
 
-    # 5. refinement rounds (or, without, one graph of the network and placement edges)
+    # 5. refinement rounds (or, without, one graph of the network and placement edges, at the network's noise)
     placed = [s for s in range(num_scans) if np.isfinite(poses[s, 0, 0])]
     final_edges, final_rejected = edges + global_edges, []
-    for _ in range(refine_rounds if refine == "icp" and len(placed) > 1 else 0):
-        round_edges = _refine_round(scans, poses, placed, max_dist, min_overlap, refine_points,
-                                    lambda e: good(e, min_overlap), rng)
-        if not round_edges:
-            break
-        poses, final_edges, final_rejected = _solve(num_scans, round_edges, min(placed), noise, seed)
+    for _ in range(o.refine_rounds if o.refine == "icp" and len(placed) > 1 else 0):
+        with clock.stage("refine"):
+            round_edges = _refine_round(scans, poses, placed, max_dist, o.min_overlap, o.refine_points,
+                                        lambda e: good(e, o.min_overlap), rng)
+            if not round_edges:
+                break
+            poses, final_edges, final_rejected = _solve(num_scans, round_edges, min(placed), noise, o.seed)
         dropped = [s for s in placed if not np.isfinite(poses[s, 0, 0])]
         if dropped:
             warnings.warn(f"scans {dropped}: no edge consistent with the others after refinement; left out",
                           LeftOutWarning, stacklevel=2)
             placed = [s for s in placed if s not in dropped]
-    if refine == "none" and global_edges:
-        poses, final_edges, final_rejected = _solve(num_scans, final_edges, min(placed), noise, seed)
-    timings["refine"] = time.perf_counter() - t
+    if o.refine == "none" and global_edges:
+        with clock.stage("graph"):
+            poses, final_edges, final_rejected = _solve(num_scans, final_edges, min(placed), network_noise, o.seed)
 
     if pending:
         warnings.warn(f"scans {pending} overlap none of the placed scans (no registration onto them reached "
-                      f"fitness {min_fitness} with coinciding surfaces); left out", LeftOutWarning, stacklevel=2)
+                      f"fitness {o.min_fitness} with coinciding surfaces); left out", LeftOutWarning, stacklevel=2)
     left_out = tuple(s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0]))
     first = min(s for s in range(num_scans) if s not in left_out)
     poses = np.linalg.inv(poses[first]) @ poses  # NaN rows stay NaN
-    timings["total"] = time.perf_counter() - t_start
     return ScanAlignment(poses, tuple(final_edges), tuple(rejected + final_rejected), left_out, voxel, max_dist,
-                         timings)
+                         clock.timings())

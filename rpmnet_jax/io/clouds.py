@@ -15,7 +15,7 @@ class CloudError(ValueError):
     """A point-cloud file could not be used; the message is one line for the user."""
 
 
-def _ext(path: str) -> str:
+def check_format(path: str) -> str:
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise CloudError(f"{path}: unknown point-cloud format {ext or '(none)'!r}; use one of {', '.join(FORMATS)}")
@@ -24,7 +24,7 @@ def _ext(path: str) -> str:
 
 def read_cloud(path: str) -> tuple[np.ndarray, np.ndarray | None]:
     """``points (N, 3)`` float64 and ``normals (N, 3)`` or ``None`` from a file."""
-    ext = _ext(path)
+    ext = check_format(path)
     if os.path.isdir(path):
         raise CloudError(f"{path}: is a folder, not a point-cloud file")
     if not os.path.isfile(path):
@@ -41,7 +41,7 @@ def read_cloud(path: str) -> tuple[np.ndarray, np.ndarray | None]:
         else:
             delimiter = "," if ext == ".csv" else None
             with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # an empty file is reported below
+                warnings.simplefilter("ignore")  # NumPy warns on an empty file; the shape check below says so
                 arr = np.loadtxt(path, delimiter=delimiter, ndmin=2, comments="#")
     except CloudError:
         raise
@@ -126,7 +126,7 @@ def _read_numpy(path):
 def write_cloud(path: str, points: np.ndarray, normals: np.ndarray | None = None) -> None:
     """Writes ``points (N, 3)`` (and ``normals``) in the format of ``path``'s extension, in float64 (text:
     17 significant digits), so georeferenced coordinates read back as they were."""
-    ext = _ext(path)
+    ext = check_format(path)
     points = np.asarray(points, np.float64)
     normals = None if normals is None else np.asarray(normals, np.float64)
     arr = points if normals is None else np.concatenate([points, normals], axis=1)
@@ -165,7 +165,7 @@ def write_transform(path: str, transform: np.ndarray, **extra) -> None:
 
 
 def write_candidates(path: str, candidates, information: np.ndarray, **extra) -> None:
-    """The distinct answers of an alignment (:class:`rpmnet_jax.scans.alignment.Answer`, best first) and the
+    """The distinct answers of an alignment (:class:`rpmnet_jax.pairwise.alignment.Answer`, best first) and the
     information matrix of the best, as ``.json`` (float64 exact)."""
     rows = [{"transform": np.asarray(c.transform, np.float64).tolist(), "score": c.score, "fitness": c.fitness,
              "inlier_rmse": c.inlier_rmse, "start": c.init} for c in candidates]

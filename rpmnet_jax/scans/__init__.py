@@ -1,1 +1,0 @@
-"""Registering people's own clouds: normalisation, the network, file formats, normal estimation."""
