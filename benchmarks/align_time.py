@@ -27,7 +27,7 @@ def main() -> None:
     bench_utils.pin(a.threads)
     import numpy as np
     from rpmnet_jax import data
-    from rpmnet_jax.pairwise import alignment, candidates
+    from rpmnet_jax.pairwise import alignment
     from rpmnet_jax.weights import loading
 
     ds = data.ModelNet40(a.data_root, "val", a.dataset, num_points=a.points, rot_mag=a.rot_mag)

@@ -25,7 +25,7 @@ SHARES = (0.8, 0.85, 0.9, 0.95)
 
 def _rows(ds, indices, params, group):
     from rpmnet_jax import metrics
-    from rpmnet_jax.pairwise import alignment, candidates
+    from rpmnet_jax.pairwise import alignment
     out = []
     for i in indices:
         d = ds[int(i)]

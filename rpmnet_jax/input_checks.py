@@ -1,4 +1,5 @@
-"""Thin input checks run before tracing (on shapes and dtypes only, so they also work under jit)."""
+"""Thin input checks: shapes and dtypes before tracing (so they also work under jit), and the values of options
+objects (one line each, naming the option)."""
 
 import numpy as np
 import jax.numpy as jnp
@@ -28,3 +29,29 @@ def check_pair(src, ref):
     if src.shape[0] != ref.shape[0]:
         raise ValueError(f"src and ref must have the same batch size, got src {tuple(src.shape)} "
                          f"and ref {tuple(ref.shape)}")
+
+
+def require_choice(name: str, value, choices) -> None:
+    """Raises ``ValueError`` unless ``value`` is one of ``choices``."""
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
+
+
+def require_at_least(name: str, value, least) -> None:
+    """Raises ``ValueError`` unless ``value >= least``."""
+    if not value >= least:
+        raise ValueError(f"{name} must be >= {least}, got {value}")
+
+
+def require_positive(name: str, value, optional: bool = False) -> None:
+    """Raises ``ValueError`` unless ``value > 0`` (or, ``optional``, ``None``: a setting left to its default)."""
+    if value is None and optional:
+        return
+    if value is None or not value > 0:
+        raise ValueError(f"{name} must be > 0, got {value}")
+
+
+def require_fraction(name: str, value) -> None:
+    """Raises ``ValueError`` unless ``0 <= value <= 1``."""
+    if not 0.0 <= value <= 1.0:
+        raise ValueError(f"{name} must be in [0, 1], got {value}")

@@ -1,82 +1,24 @@
-"""Own-cloud registration: file formats, normal estimation, preprocessing, the CLI and its errors."""
+"""Own-cloud registration (``align``): rigid answers in the caller's units, scores, determinism, stray points,
+too few points, the options objects; the ``rpmnet-register`` CLI and its errors."""
 
 import json
 import os
 
-import jax
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 import rpmnet_jax
+from conftest import rotation_error_deg
 from rpmnet_jax.cli import register as register_cli
-from rpmnet_jax.io import clouds as cloud_io
-from rpmnet_jax.weights import convert
-from rpmnet_jax.geometry import normals
-from rpmnet_jax.weights import loading
 from rpmnet_jax.data import synthetic
-
-
-@pytest.fixture(scope="module")
-def random_weights(tmp_path_factory):
-    path = tmp_path_factory.mktemp("w") / "random.npz"
-    np.savez(path, **convert.params_to_torch(rpmnet_jax.init_params(jax.random.PRNGKey(0))))
-    return str(path)
+from rpmnet_jax.io import clouds as cloud_io
+from rpmnet_jax.weights import loading
 
 
 def _shape(seed=0, n=3000, label=36):
     pts = synthetic.sample_shape(np.random.default_rng(seed), label, n)
     return pts[:, :3].astype(np.float64), pts[:, 3:].astype(np.float64)
-
-
-@pytest.mark.parametrize("ext", [".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".npz"])
-@pytest.mark.parametrize("with_normals", [True, False])
-def test_cloud_files_round_trip(tmp_path, ext, with_normals):
-    pts, nrm = _shape(n=500)
-    pts = pts * 100 + 7
-    path = str(tmp_path / f"cloud{ext}")
-    cloud_io.write_cloud(path, pts, nrm if with_normals else None)
-    got, got_n = cloud_io.read_cloud(path)
-    np.testing.assert_array_equal(got, pts)  # float64 (text: 17 digits) reads back exactly
-    if with_normals:
-        np.testing.assert_array_equal(got_n, nrm)
-    else:
-        assert got_n is None
-
-
-def test_ascii_pcd_and_ascii_ply(tmp_path):
-    pts, _ = _shape(n=50)
-    pcd = tmp_path / "a.pcd"
-    pcd.write_text("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
-                   f"WIDTH {len(pts)}\nHEIGHT 1\nPOINTS {len(pts)}\nDATA ascii\n"
-                   + "\n".join(f"{x} {y} {z} 0" for x, y, z in pts))
-    np.testing.assert_allclose(cloud_io.read_cloud(str(pcd))[0], pts, atol=1e-6)
-    from plyfile import PlyData, PlyElement
-    table = np.array([tuple(p) for p in pts], dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
-    PlyData([PlyElement.describe(table, "vertex")], text=True).write(str(tmp_path / "a.ply"))
-    np.testing.assert_allclose(cloud_io.read_cloud(str(tmp_path / "a.ply"))[0], pts, atol=1e-6)
-
-
-def test_transform_files_parse_back(tmp_path):
-    t = np.eye(4)
-    t[:3, :3] = Rotation.from_euler("xyz", [10, -20, 30], degrees=True).as_matrix()
-    t[:3, 3] = [1.5, -2, 1e3]
-    t[:3, 3] = [1.5, -2, 4.1e6 + 1 / 3]  # a georeferenced translation
-    for name in ("t.txt", "t.json"):
-        cloud_io.write_transform(str(tmp_path / name), t)
-        np.testing.assert_array_equal(cloud_io.read_transform(str(tmp_path / name)), t)
-    np.testing.assert_array_equal(np.loadtxt(tmp_path / "t.txt"), t)
-
-
-def test_estimated_normals_agree_with_analytic():
-    for label in (0, 8, 16, 24):  # superquadric, box, cylinder, torus families
-        pts, nrm = _shape(seed=label, n=4000, label=label)
-        est = normals.estimate_normals(pts, k=16)
-        cos = np.abs(np.sum(est * nrm, axis=1))
-        assert np.median(np.degrees(np.arccos(np.clip(cos, 0, 1)))) < 5.0, label
-        np.testing.assert_allclose(np.linalg.norm(est, axis=1), 1.0, atol=1e-9)
-    pts, nrm = _shape(seed=1, n=4000, label=0)  # convex: the outward orientation is the analytic sign
-    assert np.mean(np.sum(normals.estimate_normals(pts) * nrm, axis=1) > 0) > 0.95
 
 
 @pytest.mark.parametrize("centering", ["separate", "common"])
@@ -89,10 +31,13 @@ def test_transform_is_rigid_and_in_callers_units(random_weights, centering):
     k, off = 250.0, np.array([1e3, -50.0, 7.0])
     b = rpmnet_jax.align(src * k + off, ref * k + off, src_n, None, **kw)
     rot = a.transform[:3, :3]
+    # the network's rotations are float32 (measured orthogonality and determinant defects: 5e-7)
     np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-5)
     assert abs(np.linalg.det(rot) - 1) < 1e-5
-    np.testing.assert_allclose(b.transform[:3, :3], rot, atol=2e-4)
+    np.testing.assert_allclose(b.transform[:3, :3], rot, atol=2e-4)  # float32 runs of the same clouds: 3e-7
+    # 0.5 = 2e-3 of the 250× scale: float32 unit-sphere translations, scaled back (measured 3.5e-4)
     np.testing.assert_allclose(b.transform[:3, 3], k * a.transform[:3, 3] + off - rot @ off, atol=0.05 * k * 1e-2 * 4)
+    # the same float64 product (measured: identical)
     np.testing.assert_allclose(b.aligned, (src * k + off) @ b.transform[:3, :3].T + b.transform[:3, 3], atol=1e-6)
     assert b.transforms.shape == (2, 4, 4) and 0.0 <= b.confidence <= 1.0
 
@@ -105,6 +50,7 @@ def test_separate_centering_follows_a_shift_of_the_reference(random_weights):
     kw = dict(checkpoint=random_weights, num_points=200, num_iters=2, init="local")
     a = rpmnet_jax.align(src, ref, src_n, ref_n, **kw)
     b = rpmnet_jax.align(src, ref + d, src_n, ref_n, **kw)
+    # the network sees identical centred clouds: only float64 round-off of the shift remains (measured 1e-16 and 0)
     np.testing.assert_allclose(b.transform[:3, :3], a.transform[:3, :3], atol=1e-6)
     np.testing.assert_allclose(b.transform[:3, 3], a.transform[:3, 3] + d, atol=1e-4)
     with pytest.raises(ValueError, match="centering"):
@@ -136,9 +82,8 @@ def test_an_unconverged_winner_is_refined_further(random_weights):
     short = rpmnet_jax.RefineOptions(scales=(1.0,), max_iterations=1)
     a = rpmnet_jax.align(src, src @ rot.T, src_n, src_n @ rot.T, refine_options=short, **kw)
     assert 1 < a.num_iterations <= 1 + candidates.POLISH_FACTOR
-    err = lambda t: np.degrees(np.arccos(np.clip((np.trace(t[:3, :3].T @ rot) - 1) / 2, -1, 1)))
     start = a.transforms[-1]
-    assert err(a.transform) < err(start)
+    assert rotation_error_deg(a.transform[:3, :3], rot) < rotation_error_deg(start[:3, :3], rot)
 
 
 def test_pipeline_results_are_scored_by_nearest_neighbours_and_deterministic(random_weights):
@@ -159,7 +104,7 @@ def test_pipeline_results_are_scored_by_nearest_neighbours_and_deterministic(ran
     assert a.inlier_rmse == pytest.approx(np.sqrt(np.mean(nearest[within] ** 2)), rel=1e-9)
     np.testing.assert_array_equal(a.correspondences, np.stack([np.nonzero(within)[0], d.argmin(1)[within]], 1))
     assert set(a.timings) == set(a.stages) | {"total"}
-    assert set(a.stages) == {"prepare", "network", "classical", "global", "refine", "score"}
+    assert a.stages == ("prepare", "network", "refine", "score")  # init="local": no classical or global stage
     c = rpmnet_jax.align(src * 3.0, ref, src_n, None, max_correspondence_distance=0.5, **kw)
     assert c.max_correspondence_distance == 0.5
     for bad in (dict(init="everywhere"), dict(refine="gicp"), dict(max_correspondence_distance=-1.0),
@@ -184,6 +129,23 @@ def test_refine_options_are_checked_when_made(bad):
     assert rpmnet_jax.RefineOptions().icp_kwargs() == {}
     assert rpmnet_jax.RefineOptions(scales=[2, 1], max_iterations=9).icp_kwargs() == dict(scales=(2.0, 1.0),
                                                                                          max_iterations=9)
+
+
+def test_too_few_points_for_icp_ask_for_refine_none(random_weights):
+    """Fewer points than ICP needs (``icp.MIN_PAIRS``): the default ``refine="icp"`` is refused up front, naming
+    ICP and ``refine='none'``; the network alone (``refine="none", init="local"``) registers them."""
+    rng = np.random.default_rng(0)
+    turn = Rotation.from_euler("z", 10, degrees=True).as_matrix()
+    for n in (4, 5):
+        src = rng.normal(size=(n, 3))
+        with pytest.raises(ValueError, match=r"ICP.*refine='none'"):
+            rpmnet_jax.align(src, src @ turn.T + 0.1, checkpoint=random_weights)
+    a = rpmnet_jax.align(src, src @ turn.T + 0.1, checkpoint=random_weights, refine="none", init="local",
+                         num_iters=1)
+    rot = a.transform[:3, :3]
+    assert np.all(np.isfinite(a.transform)) and a.num_points == (5, 5) and a.aligned.shape == (5, 3)
+    np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-5)  # float32 network answer
+    assert a.init == "local" and "network" in a.stages and "classical" not in a.stages
 
 
 def test_nan_rows_keep_the_callers_row_numbers(random_weights):
@@ -414,11 +376,12 @@ def test_cli_recovers_a_known_transform_with_the_shipped_model(tmp_path, capsys,
                               capsys)
     assert code == 0, err
     got = cloud_io.read_transform(str(out_t))
-    err_r = np.degrees(np.arccos(np.clip((np.trace(got[:3, :3].T @ rot) - 1) / 2, -1, 1)))
+    err_r = rotation_error_deg(got[:3, :3], rot)
     size = np.linalg.norm(src.max(0) - src.min(0))
     err_t = np.linalg.norm(got[:3, 3] - trans) / size
     print(json.dumps({"ext": ext, "rot_err_deg": float(err_r), "trans_err_rel": float(err_t)}))
-    assert err_r < 0.3 and err_t < 0.006, (err_r, err_t)  # measured 0.10° and 0.0024 (noise: 0.005 of the scale)
+    # measured 0.10° and 0.0024 with an earlier model, 0.034° and 0.0006 with v12_step200 (noise: 0.005 of the scale)
+    assert err_r < 0.3 and err_t < 0.006, (err_r, err_t)
     assert os.path.exists(out_a) and cloud_io.read_cloud(str(out_a))[0].shape == src.shape
 
 

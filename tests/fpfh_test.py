@@ -1,3 +1,6 @@
+"""FPFH: equal to Open3D's, invariant under rigid motion, pair features and histogram sums, ties of the normal
+swap, clouds too small for a neighbour."""
+
 import numpy as np
 import pytest
 
@@ -18,7 +21,7 @@ def test_fpfh_equals_open3d():
     pc.points, pc.normals = o3d.utility.Vector3dVector(pts), o3d.utility.Vector3dVector(nrm)
     theirs = np.asarray(o3d.pipelines.registration.compute_fpfh_feature(
         pc, o3d.geometry.KDTreeSearchParamHybrid(radius=0.3, max_nn=64)).data).T
-    np.testing.assert_allclose(fpfh.fpfh(pts, nrm, 0.3, 64), theirs, atol=1e-9)
+    np.testing.assert_allclose(fpfh.fpfh(pts, nrm, 0.3, 64), theirs, atol=1e-9)  # both float64: round-off of sums
 
 
 def test_fpfh_is_invariant_under_rigid_motion():
@@ -26,7 +29,8 @@ def test_fpfh_is_invariant_under_rigid_motion():
     rot = rotation_about([1.0, 2.0, -0.5], 170.0)
     moved = fpfh.fpfh(pts @ rot.T + [0.3, -2.0, 5.0], nrm @ rot.T, 0.3, 64)
     still = fpfh.fpfh(pts, nrm, 0.3, 64)
-    # α = ±π lie in bins 0 and 10 (the wrap-around): rounding moves pairs at the branch cut between them
+    # float64 round-off of the moved points (bins sum to 100 per block); α = ±π lie in bins 0 and 10 (the
+    # wrap-around): rounding moves pairs at the branch cut between them
     np.testing.assert_allclose(moved[:, 1:10], still[:, 1:10], atol=1e-6)
     np.testing.assert_allclose(moved[:, 11:], still[:, 11:], atol=1e-6)
     np.testing.assert_allclose(moved[:, 0] + moved[:, 10], still[:, 0] + still[:, 10], atol=1e-6)
@@ -51,3 +55,20 @@ def test_the_normal_swap_ties_as_open3d_for_arrays_and_scalars():
     assert not fpfh._acos_greater(np.array([x]), np.array([y]))[0]
     assert not fpfh._acos_greater(np.float64(x), np.float64(y))
     assert fpfh._acos_greater(np.array([0.2, 0.9]), np.array([0.3, 0.1])).tolist() == [True, False]
+
+
+def test_one_neighbour_and_one_point_give_empty_histograms_of_33_bins():
+    """``max_nn=1`` (each point's only neighbour is itself) and a one-point cloud: ``(N, 33)`` zeros, as Open3D
+    gives a point without neighbours (SciPy returns ``(N,)`` for ``k=1``: it must not broadcast to ``(N, N)``)."""
+    pts, nrm = _shape(50)
+    got = fpfh.fpfh(pts, nrm, 0.3, max_nn=1)
+    assert got.shape == (50, 33)
+    np.testing.assert_array_equal(got, 0.0)
+    idx, d2, valid = fpfh.neighbours(pts, 0.3, 1)
+    assert idx.shape == d2.shape == valid.shape == (50, 1)
+    np.testing.assert_array_equal(idx[:, 0], np.arange(50))
+    one = fpfh.fpfh(pts[:1], nrm[:1], 0.3)
+    assert one.shape == (1, 33)
+    np.testing.assert_array_equal(one, 0.0)
+    with pytest.raises(ValueError, match="max_nn"):
+        fpfh.neighbours(pts, 0.3, 0)

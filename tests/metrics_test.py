@@ -126,3 +126,13 @@ def test_accepts_six_columns_and_rejects_bad_shapes():
     np.testing.assert_allclose(m["chamfer_dist"], 0.0, atol=1e-12)
     with pytest.raises(ValueError, match="pred and gt"):
         metrics.registration_metrics(eye[:, :, :3], eye[:, :, :3], pts, pts, pts)
+
+
+def test_transform_errors_of_a_known_motion():
+    """``transform_errors`` of ``(4, 4)`` matrices: a 12° turn about z and a (0, 0.3, 0.4) shift against the
+    identity."""
+    pred = np.eye(4)
+    pred[:3, :3] = _rot("z", 12.0)
+    pred[:3, 3] = [0.0, 0.3, 0.4]
+    err_r, err_t = metrics.transform_errors(pred, np.eye(4))
+    assert err_r == pytest.approx(12.0) and err_t == pytest.approx(0.5)

@@ -1,34 +1,16 @@
-"""Preparing clouds: kept rows, the robust centre and scale, estimated normals the same way in both clouds."""
+"""Preparing a pair: stray points left out of the centre, scale and samples; estimated normals the same way in
+both clouds."""
 
 import numpy as np
 import pytest
 
 from rpmnet_jax.data import synthetic
-from rpmnet_jax.geometry import cloud
 from rpmnet_jax.pairwise import prepare
 
 
 def _shape(seed=0, n=800, label=36):
     pts = synthetic.sample_shape(np.random.default_rng(seed), label, n)
     return pts[:, :3].astype(np.float64), pts[:, 3:].astype(np.float64)
-
-
-def test_clean_cloud_reports_the_kept_rows():
-    pts, nrm = _shape(n=50)
-    pts[[3, 17]] = np.nan
-    nrm[40] = np.inf
-    with pytest.warns(UserWarning, match="dropped 3 points"):
-        got, got_n, rows = cloud.clean_cloud("c", pts, nrm)
-    np.testing.assert_array_equal(rows, [i for i in range(50) if i not in (3, 17, 40)])
-    np.testing.assert_array_equal(got, pts[rows])
-    np.testing.assert_allclose(got_n, nrm[rows])
-
-
-def test_clean_clouds_keep_their_centroid_and_radius():
-    pts, _ = _shape()
-    centre, core = cloud.robust_centre(pts)
-    assert core.all()
-    np.testing.assert_array_equal(centre, pts.mean(axis=0))
 
 
 def test_stray_points_move_neither_centre_nor_scale():

@@ -1,9 +1,11 @@
-"""evaluate_registration: fitness, inlier RMSE and correspondences against a brute-force NumPy computation."""
+"""evaluate_registration: fitness, inlier RMSE and correspondences against a brute-force NumPy computation;
+plane_fit: the information matrix against finite differences."""
 
 import numpy as np
 import pytest
 
 import rpmnet_jax
+from conftest import random_pose
 from rpmnet_jax.geometry import scoring
 
 
@@ -54,3 +56,25 @@ def test_bad_input():
         scoring.evaluate_registration(pts, pts, np.eye(3), 0.1)
     with pytest.raises(ValueError, match="source"):
         scoring.evaluate_registration(np.zeros((0, 3)), pts, np.eye(4), 0.1)
+
+
+def test_plane_fit_information_is_the_right_perturbation_jacobian():
+    """``information = JᵀJ / σ²`` with ``J`` the finite-difference Jacobian of the residuals under ``T·Exp(ξ)``."""
+    import gtsam
+
+    rng = np.random.default_rng(0)
+    src = rng.uniform(-1, 1, size=(200, 3))
+    normals = rng.normal(size=(200, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    t = random_pose(rng)
+    ref = src @ t[:3, :3].T + t[:3, 3] + 0.01 * rng.normal(size=(200, 3))
+    corr = np.stack([np.arange(200), np.arange(200)], axis=1)
+    fit = scoring.plane_fit(src, ref, normals, t, corr)
+    eps = 1e-6
+    jac = np.stack([(scoring.plane_fit(src, ref, normals, t @ gtsam.Pose3.Expmap(eps * np.eye(6)[k]).matrix(),
+                                       corr).residuals - fit.residuals) / eps for k in range(6)], axis=1)
+    # forward differences at eps = 1e-6 on unit-sized points: truncation ~eps relative, entries ~1/σ² = 1e4
+    np.testing.assert_allclose(fit.information, jac.T @ jac / np.mean(fit.residuals ** 2), rtol=1e-4, atol=1e-3)
+    empty = scoring.plane_fit(src, ref, normals, t, np.zeros((0, 2), int))
+    np.testing.assert_array_equal(empty.information, np.zeros((6, 6)))
+    assert empty.residuals.shape == (0,)

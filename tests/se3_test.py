@@ -18,6 +18,7 @@ def test_compose_inverse_round_trip(batch_shape):
     a = random_transform(rng, n).reshape(batch_shape + (3, 4)).astype(np.float32)
     b = random_transform(rng, n).reshape(batch_shape + (3, 4)).astype(np.float32)
     ident = se3.identity(batch_shape)
+    # float32 transforms with unit rotations and translations up to 0.5: ~100 float32 eps
     np.testing.assert_allclose(se3.compose(a, se3.inverse(a)), ident, atol=1e-5)
     np.testing.assert_allclose(se3.compose(se3.inverse(a), a), ident, atol=1e-5)
     np.testing.assert_allclose(se3.compose(a, ident), a, atol=1e-6)
@@ -30,6 +31,7 @@ def test_apply_matches_homogeneous_and_compose():
     a, b = random_transform(rng, 2).astype(np.float32)[:, None]
     pts = rng.normal(size=(1, 10, 3)).astype(np.float32)
     expected = (np.concatenate([pts, np.ones((1, 10, 1))], -1) @ _homog(a).transpose(0, 2, 1))[..., :3]
+    # float32 points of unit scale (normal draws, up to ~3): ~100 float32 eps
     np.testing.assert_allclose(se3.apply(a, pts), expected, atol=1e-5)
     np.testing.assert_allclose(se3.apply(se3.compose(a, b), pts), se3.apply(a, se3.apply(b, pts)), atol=1e-5)
     np.testing.assert_allclose(se3.apply(se3.inverse(a), se3.apply(a, pts)), pts, atol=1e-5)
@@ -92,3 +94,34 @@ def test_exp_gradient_is_finite_at_zero():
         assert np.all(np.isfinite(np.asarray(g)))
     # at zero: d/dω |x + ω × x + v|² = 2 x × (x + v) ... with x = 1, v = 0 the rotation gradient is 0
     np.testing.assert_allclose(jax.grad(f)(jnp.zeros(6)), [0, 0, 0, 2, 2, 2], atol=1e-6)
+
+
+def _about_z(degrees):
+    from conftest import rotation_about
+
+    return rotation_about([0.0, 0.0, 1.0], degrees)
+
+
+def test_distinct_rotations_keep_each_one_far_from_every_better_kept_one():
+    """Greedy over the ranking: 5° from the best is dropped, 20° kept; 8° from a dropped one but 16° from the
+    best is kept (only kept rotations count); exactly the minimum angle apart is distinct; ``limit`` stops early."""
+    rots = np.stack([_about_z(0), _about_z(5), _about_z(20), _about_z(8), _about_z(16)])
+    assert se3.distinct_rotations(rots, 10.0) == [0, 2]  # 16° lies 4° from the kept 20°
+    rots = np.stack([_about_z(0), _about_z(8), _about_z(16)])
+    assert se3.distinct_rotations(rots, 10.0) == [0, 2]
+    assert se3.distinct_rotations(np.stack([_about_z(0), _about_z(45)]), 45.0) == [0, 1]
+    assert se3.distinct_rotations(np.stack([_about_z(0), _about_z(90), _about_z(180)]), 10.0, limit=2) == [0, 1]
+    assert se3.distinct_rotations(np.zeros((0, 3, 3)), 10.0) == []
+
+
+def test_distinct_rotations_equal_a_pairwise_loop():
+    """Against a plain loop over pairs with SciPy's rotation angle, on 200 random rotations."""
+    from scipy.spatial.transform import Rotation
+
+    rots = Rotation.random(200, random_state=0).as_matrix()
+    want = []
+    for i in range(len(rots)):
+        if all(Rotation.from_matrix(rots[i] @ rots[k].T).magnitude() >= np.radians(60.0) for k in want):
+            want.append(i)
+    got = se3.distinct_rotations(rots, 60.0)
+    assert got == want and 5 < len(got) < 200

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from rpmnet_jax import input_checks as checks
+
 REFINES = ("icp", "none")
 
 
@@ -23,37 +25,31 @@ class ScanOptions:
     ``edge_sigma_fraction`` × the correspondence distance (translation), per axis. Deterministic for a ``seed``.
     """
 
-    voxel_size: float | None = None
-    max_correspondence_distance: float | None = None
-    num_points: int = 256
+    num_points: int = 256  # network edges
     num_iters: int = 3
     batch_size: int = 16
     all_pairs_up_to: int = 12
     window: int = 3
-    min_fitness: float = 0.3
+    voxel_size: float | None = None  # sizes
+    max_correspondence_distance: float | None = None
+    min_fitness: float = 0.3  # accepting an edge
     min_overlap: float = 0.2
     max_plane_residual: float = 0.1
-    refine: str = "icp"
+    refine: str = "icp"  # refinement
     refine_rounds: int = 2
     refine_points: int = 3000
-    edge_sigma_deg: float = 0.25
+    edge_sigma_deg: float = 0.25  # edge noise floor
     edge_sigma_fraction: float = 0.1
     seed: int = 0
 
     def __post_init__(self):
         for name in ("voxel_size", "max_correspondence_distance"):
-            value = getattr(self, name)
-            if value is not None and not value > 0:
-                raise ValueError(f"ScanOptions.{name} must be > 0, got {value}")
+            checks.require_positive(f"ScanOptions.{name}", getattr(self, name), optional=True)
+        for name in ("max_plane_residual", "edge_sigma_deg", "edge_sigma_fraction"):
+            checks.require_positive(f"ScanOptions.{name}", getattr(self, name))
         for name, least in (("num_points", 3), ("num_iters", 1), ("batch_size", 1), ("all_pairs_up_to", 2),
                             ("window", 1), ("refine_rounds", 0), ("refine_points", 3)):
-            if getattr(self, name) < least:
-                raise ValueError(f"ScanOptions.{name} must be >= {least}, got {getattr(self, name)}")
+            checks.require_at_least(f"ScanOptions.{name}", getattr(self, name), least)
         for name in ("min_fitness", "min_overlap"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"ScanOptions.{name} must be in [0, 1], got {getattr(self, name)}")
-        for name in ("max_plane_residual", "edge_sigma_deg", "edge_sigma_fraction"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"ScanOptions.{name} must be > 0, got {getattr(self, name)}")
-        if self.refine not in REFINES:
-            raise ValueError(f"ScanOptions.refine must be one of {REFINES}, got {self.refine!r}")
+            checks.require_fraction(f"ScanOptions.{name}", getattr(self, name))
+        checks.require_choice("ScanOptions.refine", self.refine, REFINES)

@@ -38,10 +38,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from rpmnet_jax import config as config_lib, stopwatch
-from rpmnet_jax.geometry import icp, scoring
+from rpmnet_jax.geometry import scoring
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import candidates as candidates_lib, global_search, options as options_lib, prepare
 from rpmnet_jax.pairwise import starts as starts_lib
@@ -108,60 +107,47 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     Deterministic for a ``seed``.
     """
     options_lib.check(init, refine, num_iters, max_correspondence_distance, refine_options, global_options)
-    stages = stopwatch.Stopwatch()
-    # 1. prepare: the network's samples, the dense samples, the full reference's tree and normals (once)
-    pair = stages.timed("prepare", prepare.prepare_pair, src_points, ref_points, src_normals, ref_normals,
-                        num_points=num_points, sampling=sampling, seed=seed, reestimate_normals=reestimate_normals,
-                        centering=centering)
-    if refine == "icp":
-        for name, n in (("source", len(pair.src)), ("reference", len(pair.ref))):
-            if n < icp.MIN_PAIRS:
-                raise ValueError(f"{name}: {n} usable points; ICP refinement needs at least {icp.MIN_PAIRS} "
-                                 "(refine='none' takes 3)")
-    max_dist = (max_correspondence_distance if max_correspondence_distance is not None
-                else DEFAULT_RELATIVE_DISTANCE * pair.scale)
-    max_dist_unit = max_dist / pair.scale
-    ref_tree, ref_normals_at = stages.timed("prepare", _full_reference, pair)
-    dense = (stages.timed("prepare", prepare.dense_clouds, pair, refine_options.points, seed, ref_normals_at)
-             if (refine == "icp" or init != "local") else None)
+    clock = stopwatch.Stopwatch()
+    with clock.stage("prepare"):  # 1. what every later stage needs, made once
+        inputs = prepare.for_alignment(
+            src_points, ref_points, src_normals, ref_normals, num_points=num_points, sampling=sampling, seed=seed,
+            reestimate_normals=reestimate_normals, centering=centering,
+            icp=refine == "icp", dense_points=refine_options.points if (refine == "icp" or init != "local") else None,
+            max_correspondence_distance=max_correspondence_distance, relative_distance=DEFAULT_RELATIVE_DISTANCE)
+    pair, dense, max_dist_unit = inputs.pair, inputs.dense, inputs.max_distance_unit
     params = params if params is not None else loading.load_params(checkpoint)
     cfg = cfg or config_lib.RPMNetConfig()
 
-    # 2-3. starts, each refined and scored: classical first, the network when they are weak, the global search last
-    def refined(starts):
-        if not starts:
-            return []
-        return stages.timed("refine", candidates_lib.refine_starts, starts, dense, max_dist_unit, refine,
-                            refine_options)
+    # 2-3. starts, each refined and scored as it comes: classical first, the network when they are weak, the
+    # network's global search when still no answer is good
+    def refined(starts) -> list:
+        with clock.stage("refine"):
+            return candidates_lib.refine_starts(starts, dense, max_dist_unit, refine, refine_options)
 
     found = []
-    if init != "local" and global_options.classical:
-        classical = stages.timed("classical", starts_lib.classical_starts, pair, global_options.classical, seed)
-        if not classical and init in ("classical", "global"):
+    if init != "local":
+        classical = []
+        if global_options.classical:
+            with clock.stage("classical"):
+                classical = starts_lib.classical_starts(pair, global_options.classical, seed)
+        if not classical and init in ("classical", "global"):  # no hypothesis: the clouds as they lie
             classical = [starts_lib.identity_start()]
-        found += refined(classical)
-    elif init in ("classical", "global"):  # no hypotheses asked for: the clouds as they lie
-        found += refined([starts_lib.identity_start()])
+        found += refined(classical) if classical else []
     if init == "local" or (init == "auto" and _needs_network(found, global_options)):
-        found += refined([stages.timed("network", starts_lib.local_start, params, pair, cfg, num_iters)])
+        with clock.stage("network"):
+            local = starts_lib.local_start(params, pair, cfg, num_iters)
+        found += refined([local])
     if init == "global" or (init == "auto" and max((c.score[1] for c in found), default=0.0)
                             < global_options.auto_fitness):
-        screened = stages.timed("global", global_search.screen_hypotheses, params, pair, dense, cfg,
-                                global_options, max_dist_unit, seed)
+        with clock.stage("global"):
+            screened = global_search.screen_hypotheses(params, pair, dense, cfg, global_options, max_dist_unit, seed)
         if refine != "icp":  # the network's answers as they are
             screened = [s._replace(transform=s.network_transforms[-1]) for s in screened]
         found += refined(screened)
 
-    # 4. select: the distinct answers, best first, the best one's refinement finished
-    ranked = stages.timed("refine", candidates_lib.select, found, dense, max_dist_unit, refine, refine_options)
-    # 5. report: in the caller's units, scored on the full clouds
-    return _report(pair, ranked, max_dist, ref_tree, ref_normals_at, src_points, stages)
-
-
-def _full_reference(pair: prepare.PreparedPair) -> tuple:
-    """The full reference's k-d tree and its :class:`~rpmnet_jax.pairwise.prepare.RowNormals`."""
-    tree = cKDTree(pair.ref)
-    return tree, prepare.RowNormals(pair.ref, pair.ref_normals, tree)
+    with clock.stage("refine"):  # 4. select: the distinct answers, best first, the best one's refinement finished
+        selection = candidates_lib.select(found, dense, max_dist_unit, refine, refine_options)
+    return _report(inputs, selection, src_points, clock)  # 5. report: in the caller's units, on the full clouds
 
 
 def _needs_network(found: list, opts: options_lib.GlobalOptions) -> bool:
@@ -174,28 +160,25 @@ def _needs_network(found: list, opts: options_lib.GlobalOptions) -> bool:
     return ranked[0].score[1] < opts.network_fitness or candidates_lib.is_ambiguous(ranked)
 
 
-def _report(pair: prepare.PreparedPair, ranked: list, max_dist: float, ref_tree: cKDTree,
-            ref_normals_at: prepare.RowNormals, src_points, stages: stopwatch.Stopwatch) -> Alignment:
-    """The :class:`Alignment` of the best of ``ranked`` (distinct candidates, best first): its fitness, RMSE and
-    correspondences on the full clouds, and its point-to-plane information (normals where the caller gave none:
-    those the dense samples estimated, and the missing rows)."""
-    best = ranked[0]
+def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_points,
+            clock: stopwatch.Stopwatch) -> Alignment:
+    """The :class:`Alignment` of the best selected candidate, in the caller's units and rows: its fitness, RMSE and
+    correspondences on the full clouds and the point-to-plane information over them (the reference's normals
+    where the caller gave none: those the dense samples estimated, and the missing rows)."""
+    pair, best = inputs.pair, selection.ranked[0]
     answers = tuple(Answer(pair.to_callers_units(c.transform[:3]), float(c.score[0]), float(c.score[1]),
-                           -float(c.score[2]) * pair.scale, c.init) for c in ranked)
+                           -float(c.score[2]) * pair.scale, c.init) for c in selection.ranked)
     transform = answers[0].transform
-
-    def score():
-        s = scoring.evaluate_registration(pair.src, pair.ref, transform, max_dist, ref_tree=ref_tree)
+    with clock.stage("score"):
+        s = scoring.evaluate_registration(pair.src, pair.ref, transform, inputs.max_distance,
+                                          ref_tree=inputs.ref_tree)
         normals = np.zeros_like(pair.ref)
-        rows = np.unique(s.correspondences[:, 1])
-        normals[rows] = ref_normals_at(rows)
-        return s, scoring.plane_fit(pair.src, pair.ref, normals, transform, s.correspondences).information
-
-    s, information = stages.timed("score", score)
-    timings = stages.timings()
+        paired = np.unique(s.correspondences[:, 1])
+        normals[paired] = inputs.ref_normals(paired)
+        information = scoring.plane_fit(pair.src, pair.ref, normals, transform, s.correspondences).information
     aligned = se3.apply(transform, np.asarray(src_points, np.float64))  # every row of the caller's
     rows = np.stack([pair.src_rows[s.correspondences[:, 0]], pair.ref_rows[s.correspondences[:, 1]]], 1)
     return Alignment(transform, aligned, pair.to_callers_units(best.network_transforms), best.confidence,
                      (pair.src6.shape[1], pair.ref6.shape[1]), s.fitness, s.inlier_rmse, rows, best.converged,
-                     best.num_iterations, float(max_dist), best.init, timings, answers,
-                     bool(candidates_lib.is_ambiguous(ranked)), information, tuple(stages.seconds))
+                     best.num_iterations, inputs.max_distance, best.init, clock.timings(), answers,
+                     selection.ambiguous, information, tuple(clock.seconds))

@@ -86,22 +86,28 @@ def distinct(candidates: list) -> list:
 def is_ambiguous(ranked: list) -> bool:
     """Whether the second of the distinct :class:`Candidate` s ``ranked`` (best first) reaches
     ``AMBIGUITY_SHARE`` of the best's score."""
-    return len(ranked) > 1 and ranked[1].score[0] >= AMBIGUITY_SHARE * ranked[0].score[0] > 0
+    return bool(len(ranked) > 1 and ranked[1].score[0] >= AMBIGUITY_SHARE * ranked[0].score[0] > 0)
 
 
 POLISH_FACTOR = 3  # the winner, if its refinement stopped on max_iterations, continues for this many times as many
 
 
+class Selection(NamedTuple):
+    ranked: list  # the distinct :class:`Candidate` s, best first
+    ambiguous: bool  # :func:`is_ambiguous`
+
+
 def select(candidates: list, dense: prepare.DenseClouds | None, max_dist_unit: float, refine: str,
-           refine_options: options_lib.RefineOptions) -> list:
-    """The :func:`distinct` candidates, best first, the best one's refinement continued (``POLISH_FACTOR`` × the
+           refine_options: options_lib.RefineOptions) -> Selection:
+    """The :func:`distinct` candidates, best first, and whether they are ambiguous; the best one's refinement
+    continued (``POLISH_FACTOR`` × the
     iterations per stage) when it had not converged: every candidate gets the same short budget for the
     selection, the answer the whole way (the Stanford bunny's bun180 onto bun090, 54% overlap, slides slowly:
     1.4-2.2 deg off after 20 iterations per stage, 0.23-0.25 deg at convergence, 25-46 iterations)."""
     ranked = distinct(candidates)
     best = ranked[0]
     if refine != "icp" or best.converged:
-        return ranked
+        return Selection(ranked, is_ambiguous(ranked))
     kwargs = refine_options.icp_kwargs()
     kwargs["max_iterations"] = POLISH_FACTOR * kwargs.get("max_iterations", icp.PAIR.max_iterations)
     r = _icp(dense, best.transform, max_dist_unit, **kwargs)
@@ -109,7 +115,7 @@ def select(candidates: list, dense: prepare.DenseClouds | None, max_dist_unit: f
     if score >= best.score:  # else it slid away (a shape that slides along itself): the shorter run's answer
         ranked[0] = best._replace(transform=r.transform, score=score, converged=r.converged,
                                   num_iterations=best.num_iterations + r.num_iterations)
-    return ranked
+    return Selection(ranked, is_ambiguous(ranked))
 
 
 def _icp(dense: prepare.DenseClouds, start: np.ndarray, max_dist_unit: float, **icp_kwargs) -> icp.Refinement:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from rpmnet_jax import input_checks as checks
+
 INITS = ("auto", "local", "global", "classical")
 REFINES = ("icp", "none")
 HYPOTHESIS_SETS = {"icosahedral": "I", "octahedral": "O"}  # rotation groups of the global search (SciPy names)
@@ -28,16 +30,14 @@ class RefineOptions:
     tolerance: float | None = None
 
     def __post_init__(self):
-        if self.points < 3:
-            raise ValueError(f"RefineOptions.points must be >= 3, got {self.points}")
+        checks.require_at_least("RefineOptions.points", self.points, 3)
         if self.scales is not None:
             object.__setattr__(self, "scales", tuple(float(s) for s in self.scales))
             if not self.scales or min(self.scales) <= 0:
                 raise ValueError(f"RefineOptions.scales must be positive numbers, got {self.scales}")
-        if self.max_iterations is not None and self.max_iterations < 1:
-            raise ValueError(f"RefineOptions.max_iterations must be >= 1, got {self.max_iterations}")
-        if self.tolerance is not None and not self.tolerance > 0:
-            raise ValueError(f"RefineOptions.tolerance must be > 0, got {self.tolerance}")
+        if self.max_iterations is not None:
+            checks.require_at_least("RefineOptions.max_iterations", self.max_iterations, 1)
+        checks.require_positive("RefineOptions.tolerance", self.tolerance, optional=True)
 
     def icp_kwargs(self) -> dict:
         """The keywords for :func:`rpmnet_jax.geometry.icp.point_to_plane_icp` that are set."""
@@ -69,36 +69,21 @@ class GlobalOptions:
     network_fitness: float = 0.6
 
     def __post_init__(self):
-        if self.hypotheses not in HYPOTHESIS_SETS:
-            raise ValueError(f"GlobalOptions.hypotheses must be one of {sorted(HYPOTHESIS_SETS)}, "
-                             f"got {self.hypotheses!r}")
-        if self.top_k < 1:
-            raise ValueError(f"GlobalOptions.top_k must be >= 1, got {self.top_k}")
-        if self.points < 3 or self.polish_points < 3:
-            raise ValueError(f"GlobalOptions.points and polish_points must be >= 3, got {self.points}, "
-                             f"{self.polish_points}")
-        if self.iters < 1:
-            raise ValueError(f"GlobalOptions.iters must be >= 1, got {self.iters}")
-        if not 0.0 <= self.auto_fitness <= 1.0:
-            raise ValueError(f"GlobalOptions.auto_fitness must be in [0, 1], got {self.auto_fitness}")
-        if not 0.0 <= self.network_fitness <= 1.0:
-            raise ValueError(f"GlobalOptions.network_fitness must be in [0, 1], got {self.network_fitness}")
-        if self.classical < 0:
-            raise ValueError(f"GlobalOptions.classical must be >= 0, got {self.classical}")
+        checks.require_choice("GlobalOptions.hypotheses", self.hypotheses, HYPOTHESIS_SETS)
+        for name, least in (("top_k", 1), ("points", 3), ("polish_points", 3), ("iters", 1), ("classical", 0)):
+            checks.require_at_least(f"GlobalOptions.{name}", getattr(self, name), least)
+        for name in ("auto_fitness", "network_fitness"):
+            checks.require_fraction(f"GlobalOptions.{name}", getattr(self, name))
 
 
 def check(init: str, refine: str, num_iters: int, max_correspondence_distance: float | None,
           refine_options, global_options) -> None:
     """Raises ``ValueError`` for a bad plain keyword of :func:`rpmnet_jax.align` or an options object of the
     wrong type (the options objects check their own values)."""
-    if init not in INITS:
-        raise ValueError(f"init must be one of {INITS}, got {init!r}")
-    if refine not in REFINES:
-        raise ValueError(f"refine must be one of {REFINES}, got {refine!r}")
-    if num_iters < 1:
-        raise ValueError(f"num_iters must be >= 1, got {num_iters}")
-    if max_correspondence_distance is not None and not max_correspondence_distance > 0:
-        raise ValueError(f"max_correspondence_distance must be > 0, got {max_correspondence_distance}")
+    checks.require_choice("init", init, INITS)
+    checks.require_choice("refine", refine, REFINES)
+    checks.require_at_least("num_iters", num_iters, 1)
+    checks.require_positive("max_correspondence_distance", max_correspondence_distance, optional=True)
     if not isinstance(refine_options, RefineOptions):
         raise ValueError(f"refine_options must be a RefineOptions, got {type(refine_options).__name__}")
     if not isinstance(global_options, GlobalOptions):

@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling as sampling_lib
+from rpmnet_jax.geometry import cloud, icp as icp_lib, normals as normals_lib, sampling as sampling_lib
 from rpmnet_jax.ops import se3
 
 
@@ -153,3 +153,36 @@ def dense_clouds(pair: PreparedPair, refine_points: int, seed: int, ref_normals:
     src_normals = (pair.src_normals[i_src] if pair.src_normals is not None
                    else normals_lib.normals_at(pair.src, i_src))
     return DenseClouds(src, ref, ref_normals(i_ref), cKDTree(ref), src_normals)
+
+
+class Inputs(NamedTuple):
+    """Everything :func:`rpmnet_jax.align`'s later stages need, made once by :func:`for_alignment`."""
+
+    pair: PreparedPair
+    dense: DenseClouds | None  # None when nothing is refined or scored on dense samples
+    ref_tree: cKDTree  # of the full reference (caller's units): its normals, the final score
+    ref_normals: RowNormals  # of the full reference, shared by the dense samples and the information matrix
+    max_distance: float  # the correspondence distance, caller's units
+    max_distance_unit: float  # the same in the normalised frame
+
+
+def for_alignment(src_points, ref_points, src_normals, ref_normals, *, num_points: int, sampling: str, seed: int,
+                  reestimate_normals: bool, centering: str, icp: bool, dense_points: int | None,
+                  max_correspondence_distance: float | None, relative_distance: float) -> Inputs:
+    """:func:`prepare_pair`, then the full reference's k-d tree and normals and the dense samples (``dense_points``
+    source points; ``None``: none). ``icp``: the clouds will be refined by ICP, which needs at least
+    ``icp.MIN_PAIRS`` points per cloud (else 3 do). The correspondence distance defaults to ``relative_distance``
+    × the common radius."""
+    pair = prepare_pair(src_points, ref_points, src_normals, ref_normals, num_points=num_points, sampling=sampling,
+                        seed=seed, reestimate_normals=reestimate_normals, centering=centering)
+    if icp:
+        for name, n in (("source", len(pair.src)), ("reference", len(pair.ref))):
+            if n < icp_lib.MIN_PAIRS:
+                raise ValueError(f"{name}: {n} usable points; ICP refinement needs at least {icp_lib.MIN_PAIRS} "
+                                 "(refine='none' takes 3)")
+    max_dist = (max_correspondence_distance if max_correspondence_distance is not None
+                else relative_distance * pair.scale)
+    ref_tree = cKDTree(pair.ref)
+    ref_normals_at = RowNormals(pair.ref, pair.ref_normals, ref_tree)
+    dense_samples = dense_clouds(pair, dense_points, seed, ref_normals_at) if dense_points is not None else None
+    return Inputs(pair, dense_samples, ref_tree, ref_normals_at, float(max_dist), float(max_dist) / pair.scale)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from conftest import DATA, asymmetric_shape, require, rotation_about, rotation_error_deg
-from rpmnet_jax.geometry import icp as refine
+from rpmnet_jax.geometry import icp
 
 
 def _motion(deg, axis, trans):
@@ -27,8 +27,9 @@ def test_converges_from_10_degrees_on_clean_clouds(seed, source_normals):
     gt = _motion(10.0, [0.2, 1.0, -0.4], [0.1, 0.0, 0.0])  # maps src onto ref
     src = (pts[::2] - gt[:3, 3]) @ gt[:3, :3]  # src = gt^-1(ref), other samples of the same surface
     src_n = nrm[::2] @ gt[:3, :3] if source_normals else None  # creases included: the update must settle
-    res = refine.point_to_plane_icp(src, pts[1::2], nrm[1::2], np.eye(4), 0.02,  # starts 10° and 0.1 off
+    res = icp.point_to_plane_icp(src, pts[1::2], nrm[1::2], np.eye(4), 0.02,  # starts 10° and 0.1 off
                                     src_normals=src_n)
+    # noise-free: measured 0.0003-0.018° and 4e-6-1.3e-4 (the sampling gap of two halves of 4,000 points)
     assert rotation_error_deg(res.transform[:3, :3], gt[:3, :3]) < 0.1
     assert np.linalg.norm(res.transform[:3, 3] - gt[:3, 3]) < 1e-3
     assert res.converged and res.num_iterations > 1
@@ -44,7 +45,8 @@ def test_partial_overlap_and_outliers_do_not_pull_it_off():
     src = (src - gt[:3, 3]) @ gt[:3, :3]  # src = gt^-1(world): gt maps src onto ref
     ref = pts[keep_ref] + rng.normal(scale=0.01, size=(keep_ref.sum(), 3))
     start = gt @ _motion(6.0, [1.0, 1.0, 0.0], [0.05, 0.0, -0.05])  # a network-sized error
-    res = refine.point_to_plane_icp(src, ref, nrm[keep_ref], start, 0.05)
+    res = icp.point_to_plane_icp(src, ref, nrm[keep_ref], start, 0.05)
+    # the noise-and-partiality bound of the next test (measured here: 0.31° and 0.0018)
     assert rotation_error_deg(res.transform[:3, :3], gt[:3, :3]) < 0.5
     assert np.linalg.norm(res.transform[:3, 3] - gt[:3, 3]) < 0.01
 
@@ -61,9 +63,9 @@ def test_never_makes_a_correct_answer_worse_than_noise(seed):
     src = (pts[keep_src] + rng.normal(scale=0.01, size=(keep_src.sum(), 3)))
     src = (src - gt[:3, 3]) @ gt[:3, :3]  # inverse of gt
     ref = pts[keep_ref] + rng.normal(scale=0.01, size=(keep_ref.sum(), 3))
-    res = refine.point_to_plane_icp(src, ref, nrm[keep_ref], gt, 0.05)
+    res = icp.point_to_plane_icp(src, ref, nrm[keep_ref], gt, 0.05)
     assert rotation_error_deg(res.transform[:3, :3], gt[:3, :3]) < 0.5
-    assert np.linalg.norm(res.transform[:3, 3] - gt[:3, 3]) < 0.01
+    assert np.linalg.norm(res.transform[:3, 3] - gt[:3, 3]) < 0.01  # the noise's σ
 
 
 def test_symmetric_planes_ignore_the_sign_of_source_normals():
@@ -73,17 +75,17 @@ def test_symmetric_planes_ignore_the_sign_of_source_normals():
     src = (pts[::2] + rng.normal(scale=0.005, size=(2000, 3)) - gt[:3, 3]) @ gt[:3, :3]
     src_n = nrm[::2] @ gt[:3, :3]
     signs = rng.choice([-1.0, 1.0], size=(2000, 1))
-    a = refine.point_to_plane_icp(src, pts[1::2], nrm[1::2], np.eye(4), 0.05, src_normals=src_n)
-    b = refine.point_to_plane_icp(src, pts[1::2], -nrm[1::2], np.eye(4), 0.05, src_normals=src_n * signs)
-    np.testing.assert_allclose(a.transform, b.transform, atol=1e-9)
-    assert rotation_error_deg(a.transform[:3, :3], gt[:3, :3]) < 0.1
+    a = icp.point_to_plane_icp(src, pts[1::2], nrm[1::2], np.eye(4), 0.05, src_normals=src_n)
+    b = icp.point_to_plane_icp(src, pts[1::2], -nrm[1::2], np.eye(4), 0.05, src_normals=src_n * signs)
+    np.testing.assert_allclose(a.transform, b.transform, atol=1e-9)  # measured: identical
+    assert rotation_error_deg(a.transform[:3, :3], gt[:3, :3]) < 0.1  # measured 0.027° (noise σ = 0.005)
 
 
 def test_tukey_weights():
     r = np.array([0.0, 0.25, -0.5, 0.99, 1.0, -3.0])
     expected = [1.0, (1 - 0.0625) ** 2, 0.5625, (1 - 0.9801) ** 2, 0.0, 0.0]
-    np.testing.assert_allclose(refine.tukey_weights(r, 1.0), expected)
-    np.testing.assert_allclose(refine.tukey_weights(2 * r, 2.0), refine.tukey_weights(r, 1.0))
+    np.testing.assert_allclose(icp.tukey_weights(r, 1.0), expected)
+    np.testing.assert_allclose(icp.tukey_weights(2 * r, 2.0), icp.tukey_weights(r, 1.0))
 
 
 def test_gates_follow_the_clouds_within_their_bounds():
@@ -96,14 +98,14 @@ def test_gates_follow_the_clouds_within_their_bounds():
     tree = cKDTree(pts[1::2])
     dense = pts[::2]  # 3 median nearest-neighbour distances: 0.037
     noisy = dense + rng.normal(scale=0.05, size=dense.shape)  # about 0.12
-    assert refine._pairs(tree, dense, 0.2, 1.0, 3)[2] == pytest.approx(0.05)  # the floor: a quarter
-    assert refine._pairs(tree, dense, 0.1, 1.0, 3)[2] == pytest.approx(0.037, abs=1e-3)  # in between
-    assert refine._pairs(tree, noisy, 0.1, 1.0, 3)[2] == pytest.approx(0.1)  # the stage's gate
+    assert icp._pairs(tree, dense, 0.2, 1.0, 3)[2] == pytest.approx(0.05)  # the floor: a quarter
+    assert icp._pairs(tree, dense, 0.1, 1.0, 3)[2] == pytest.approx(0.037, abs=1e-3)  # in between
+    assert icp._pairs(tree, noisy, 0.1, 1.0, 3)[2] == pytest.approx(0.1)  # the stage's gate
     half_apart = np.concatenate([dense, dense + [5.0, 0.0, 0.0]])  # half the source overlaps nothing
-    assert refine._pairs(tree, half_apart, 0.1, 1.0, 3)[2] == pytest.approx(0.037, abs=1e-3)  # the overlap's
-    assert refine._pairs(tree, dense, 0.05, 4.0, 1)[2] == pytest.approx(0.05)  # coarse: down to the finest
-    assert refine._pairs(tree, dense + [0.5, 0.0, 0.0], 0.05, 4.0, 1)[2] == pytest.approx(0.2)  # apart
-    assert 0.1 < refine._pairs(tree, noisy, 0.02, 8.0, 1)[2] < 0.14  # in between (0.02 .. 0.16)
+    assert icp._pairs(tree, half_apart, 0.1, 1.0, 3)[2] == pytest.approx(0.037, abs=1e-3)  # the overlap's
+    assert icp._pairs(tree, dense, 0.05, 4.0, 1)[2] == pytest.approx(0.05)  # coarse: down to the finest
+    assert icp._pairs(tree, dense + [0.5, 0.0, 0.0], 0.05, 4.0, 1)[2] == pytest.approx(0.2)  # apart
+    assert 0.1 < icp._pairs(tree, noisy, 0.02, 8.0, 1)[2] < 0.14  # in between (0.02 .. 0.16)
 
 
 # Open3D's median rotation error (°) on the pairs and starts of the test below (measured, open3d 0.20.0): the
@@ -131,7 +133,7 @@ def test_ends_at_least_as_close_as_open3d_on_real_shapes(name):
         src, ref = np.asarray(s["points_src"], np.float64), np.asarray(s["points_ref"], np.float64)
         gt = np.vstack([s["transform_gt"], [0.0, 0.0, 0.0, 1.0]])
         start = _motion(5.0, rng.normal(size=3), 0.02 * _unit(rng.normal(size=3))) @ gt
-        res = refine.point_to_plane_icp(src[:, :3], ref[:, :3], ref[:, 3:], start, 0.05, src_normals=src[:, 3:])
+        res = icp.point_to_plane_icp(src[:, :3], ref[:, :3], ref[:, 3:], start, 0.05, src_normals=src[:, 3:])
         ours.append(rotation_error_deg(res.transform[:3, :3], gt[:3, :3]))
         if have_open3d:
             theirs.append(rotation_error_deg(baselines.robust_icp(src, ref, start)[:3, :3], gt[:3, :3]))
@@ -146,10 +148,10 @@ def _unit(v):
 def test_bad_arguments():
     pts = np.random.default_rng(0).uniform(-1, 1, (50, 3))
     with pytest.raises(ValueError, match="max_distance"):
-        refine.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.0)
+        icp.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.0)
     with pytest.raises(ValueError, match="max_iterations"):
-        refine.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.1, max_iterations=0)
+        icp.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.1, max_iterations=0)
     with pytest.raises(ValueError, match="neighbours"):
-        refine.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.1, neighbours=0)
+        icp.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.1, neighbours=0)
     with pytest.raises(ValueError, match="src_normals"):
-        refine.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.1, src_normals=pts[:10])
+        icp.point_to_plane_icp(pts, pts, pts, np.eye(4), 0.1, src_normals=pts[:10])

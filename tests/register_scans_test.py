@@ -1,0 +1,106 @@
+"""The ``rpmnet-register-scans`` CLI: one-line errors that write nothing, the poses, merged cloud and plot it
+writes, a scan that overlaps nothing left out."""
+
+import os
+
+import numpy as np
+import pytest
+
+from conftest import DATA, require, rotation_error_deg, synthetic_scans
+from rpmnet_jax.cli import register_scans
+from rpmnet_jax.geometry import sampling
+from rpmnet_jax.io import clouds as cloud_io
+from rpmnet_jax.io import poses as scan_poses
+
+BUNNY = DATA / "stanford_bunny"
+
+
+def _write_scans(tmp_path, clouds, names):
+    paths = []
+    for c, n in zip(clouds, names):
+        paths.append(str(tmp_path / f"{n}.npy"))
+        cloud_io.write_cloud(paths[-1], c)
+    return paths
+
+
+def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(300, 3))
+    cloud_io.write_cloud(str(tmp_path / "a.xyz"), a)
+    (tmp_path / "sub").mkdir()
+    cloud_io.write_cloud(str(tmp_path / "sub" / "a.xyz"), a)
+    np.save(tmp_path / "empty.npy", np.zeros((0, 3)))
+    (tmp_path / "nothing").mkdir()
+    out = tmp_path / "poses.conf"
+    cases = {
+        "at least two": [str(tmp_path / "a.xyz")],
+        "duplicate scan names": [str(tmp_path / "a.xyz"), str(tmp_path / "sub" / "a.xyz")],
+        "empty": [str(tmp_path / "a.xyz"), str(tmp_path / "empty.npy")],
+        "no such file": [str(tmp_path / "a.xyz"), str(tmp_path / "missing.ply")],
+        "no point-cloud files": [str(tmp_path / "nothing")],
+        "unknown point-cloud format": [str(tmp_path / "a.xyz"), str(tmp_path / "b.obj")],
+    }
+    for message, scans in cases.items():
+        rc = register_scans.main(scans + ["--out-poses", str(out), "--out-merged", str(tmp_path / "m.ply")])
+        err = capsys.readouterr().err
+        assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, (message, err)
+        assert not out.exists() and not (tmp_path / "m.ply").exists()
+    rc = register_scans.main([str(tmp_path / "a.xyz"), str(tmp_path / "sub" / "a.xyz"), "--out-poses",
+                              str(tmp_path / "no" / "p.conf")])
+    assert rc == 2 and "does not exist" in capsys.readouterr().err
+
+
+def test_cli_writes_poses_merged_cloud_and_plot(tmp_path, capsys):
+    clouds, poses = synthetic_scans()
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    paths = _write_scans(folder, clouds, ["s0", "s1", "s2"])
+    out, merged, plot = tmp_path / "poses.conf", tmp_path / "merged.ply", tmp_path / "scans.png"
+    rc = register_scans.main([str(folder), "--out-poses", str(out), "--out-merged", str(merged), "--plot", str(plot)])
+    assert rc == 0, capsys.readouterr().err
+    got = scan_poses.read_poses(str(out))
+    assert list(got) == ["s0", "s1", "s2"] and out.read_text().startswith("bmesh s0.npy 0 0 0 0 0 0 1")
+    truth = np.linalg.inv(poses[0]) @ poses
+    for name, want in zip(got, truth):
+        assert rotation_error_deg(got[name][:3, :3], want[:3, :3]) < 1.0  # align_scans measured 0.0006° here
+    points, _ = cloud_io.read_cloud(str(merged))
+    assert "property double x" in merged.read_bytes()[:300].decode("ascii", "replace")  # float64
+    want = np.concatenate([c @ t[:3, :3].T + t[:3, 3] for c, t in zip(clouds, truth)])
+    # 1% of the ~0.2 shape: what 1° of rotation error moves its points by
+    assert points.shape == want.shape and np.sqrt(np.mean(np.sum((points - want) ** 2, axis=1))) < 2e-3
+    assert plot.stat().st_size > 0 and len(paths) == 3
+
+
+def test_console_entry_point_starts():
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, "-c", "from rpmnet_jax.cli.register_scans import entry; entry()", "--help"],
+                         capture_output=True, text=True, env=dict(os.environ, RPMNET_COMPILATION_CACHE="off"))
+    assert out.returncode == 0 and "usage:" in out.stdout, out.stderr[-2000:]
+
+
+@pytest.mark.slow
+def test_cli_leaves_out_a_scan_that_overlaps_nothing(tmp_path, capsys):
+    """Three bunny scans and a synthetic box: the box is reported and left out; the rest is written."""
+    from rpmnet_jax.data import synthetic
+
+    require(BUNNY / "bun.conf", "Stanford bunny scans")
+    bunny = scan_poses.read_poses(str(BUNNY / "bun.conf"))
+    names = ["bun000", "bun045", "bun315"]
+    clouds = [sampling.voxel_downsample(cloud_io.read_cloud(str(BUNNY / f"{n}.ply"))[0], None, 0.002)[0]
+              for n in names]
+    box = synthetic.sample_shape(np.random.default_rng(0), 8, 3000)[:, :3] * 0.05 + [0.3, 0.0, 0.0]
+    paths = _write_scans(tmp_path, clouds + [box], names + ["box"])
+    out, merged, plot = tmp_path / "poses.conf", tmp_path / "merged.ply", tmp_path / "scans.png"
+    rc = register_scans.main(paths + ["--out-poses", str(out), "--out-merged", str(merged), "--merged-voxel", "0.001",
+                                      "--plot", str(plot)])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    assert "box.npy overlaps none of the placed scans" in captured.err
+    got = scan_poses.read_poses(str(out))
+    assert list(got) == names
+    for n in names:
+        truth = np.linalg.inv(bunny["bun000"]) @ bunny[n]
+        assert rotation_error_deg(got[n][:3, :3], truth[:3, :3]) < 1.0
+    points, _ = cloud_io.read_cloud(str(merged))
+    assert 1000 < len(points) < sum(len(c) for c in clouds) and plot.stat().st_size > 0

@@ -1,0 +1,84 @@
+"""``align_scans``: real bunny scans into one frame, the network edges alone (``refine="none"``), each scan's size
+from its robust radius, bad options."""
+
+import numpy as np
+import pytest
+
+import rpmnet_jax
+from conftest import DATA, require, synthetic_scans
+from rpmnet_jax.evaluation import pose_errors
+from rpmnet_jax.io import clouds as cloud_io
+from rpmnet_jax.io import poses as scan_poses
+from rpmnet_jax.multiway import scan_alignment
+
+BUNNY = DATA / "stanford_bunny"
+
+
+@pytest.fixture(scope="module")
+def bunny():
+    require(BUNNY / "bun.conf", "Stanford bunny scans")
+    return scan_poses.read_poses(str(BUNNY / "bun.conf"))
+
+
+def _read(names):
+    return [cloud_io.read_cloud(str(BUNNY / f"{n}.ply"))[0] for n in names]
+
+
+def test_align_scans_four_bunny_scans(bunny):
+    names = ["bun000", "bun045", "bun315", "chin"]
+    clouds = _read(names)
+    result = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(voxel_size=0.003))
+    truth = np.stack([bunny[n] for n in names])
+    errors = pose_errors.pose_errors(result.poses, truth, clouds)
+    print(dict(zip(names, errors)))
+    np.testing.assert_allclose(result.poses[0], np.eye(4), atol=1e-9)
+    assert all(rot < 1.0 and rms < 2e-3 for rot, rms in errors), errors  # measured 0.16° and 0.3 mm
+    assert result.left_out == () and result.voxel_size == 0.003
+    assert len(result.edges) >= 3 and {e.stage for e in result.edges} == {"refine"}
+    ran = [k for k in result.timings if k != "total"]  # the stages that ran, in the pipeline's order
+    assert ran == [s for s in ("prepare", "network", "graph", "global", "refine") if s in ran]
+    assert {"prepare", "network", "refine"} <= set(ran) and list(result.timings)[-1] == "total"
+    for e in result.edges:
+        assert e.information.shape == (6, 6) and 0 < e.fitness <= 1 and e.inlier_rmse > 0
+        assert np.all(np.linalg.eigvalsh(0.5 * (e.information + e.information.T)) > 0)
+
+
+def test_align_scans_without_refinement_keeps_the_network_edges():
+    clouds, poses = synthetic_scans()
+    result = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none"))
+    errors = pose_errors.pose_errors(result.poses, poses, clouds)
+    assert all(rot < 2.0 for rot, _ in errors), errors  # the network and a short ICP: measured 0.006°
+    assert result.edges and {e.stage for e in result.edges} == {"network"} and "refine" not in result.timings
+    with pytest.raises(ValueError, match="at least two scans"):
+        rpmnet_jax.align_scans(clouds[:1])
+
+
+def test_bad_options_are_a_value_error():
+    clouds, _ = synthetic_scans()
+    with pytest.raises(ValueError, match="ScanOptions"):
+        rpmnet_jax.align_scans(clouds, options="x")
+    with pytest.raises(ValueError, match="ScanOptions.refine"):
+        rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="bad"))
+
+
+def test_a_stray_point_does_not_change_a_scan_s_size():
+    """The default voxel and correspondence distance follow the median robust radius of the scans: one point
+    100 radii away leaves them as they are."""
+    clouds, _ = synthetic_scans()
+    _, voxel, radius = scan_alignment._prepare_scans(clouds, None, None)
+    stray = clouds[1].mean(0) + 100 * np.ptp(clouds[1], axis=0)
+    dirty = [clouds[0], np.concatenate([clouds[1], stray[None]]), clouds[2]]
+    _, dirty_voxel, dirty_radius = scan_alignment._prepare_scans(dirty, None, None)
+    assert dirty_voxel == voxel and dirty_radius == radius
+    assert voxel == pytest.approx(scan_alignment.DEFAULT_RELATIVE_VOXEL * radius)
+
+
+@pytest.mark.slow
+def test_align_scans_all_bunny_scans_within_half_a_degree(bunny):
+    names = list(bunny)
+    clouds = _read(names)
+    result = rpmnet_jax.align_scans(clouds)
+    errors = pose_errors.pose_errors(result.poses, np.stack([bunny[n] for n in names]), clouds)
+    print(dict(zip(names, errors)))
+    # measured up to 0.38° and 0.5 mm over the ten scans
+    assert all(rot <= 0.5 and rms <= 1e-3 for rot, rms in errors), dict(zip(names, errors))
