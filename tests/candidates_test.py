@@ -2,7 +2,6 @@
 answers are more than ``AMBIGUITY_DEG`` apart, ambiguity is a second answer close to the best's score."""
 
 import numpy as np
-import pytest
 from scipy.spatial import cKDTree
 
 from conftest import rotation_about

@@ -157,6 +157,14 @@ def random_weights(tmp_path_factory) -> str:
     return str(path)
 
 
+def synthetic_shape(seed=0, n=3000, label=36):
+    """``(points (n, 3), normals (n, 3))`` float64 of a synthetic shape of category ``label``."""
+    from rpmnet_jax.data import synthetic
+
+    pts = synthetic.sample_shape(np.random.default_rng(seed), label, n)
+    return pts[:, :3].astype(np.float64), pts[:, 3:].astype(np.float64)
+
+
 def synthetic_scans():
     """Three overlapping partial views ``(N_i, 3)`` of one synthetic shape (~0.2 across), each in its own frame,
     and their poses ``(3, 4, 4)`` (scan → world)."""

@@ -2,7 +2,6 @@
 both clouds."""
 
 import numpy as np
-import pytest
 
 from rpmnet_jax.data import synthetic
 from rpmnet_jax.pairwise import prepare

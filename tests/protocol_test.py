@@ -2,9 +2,7 @@
 
 import csv
 import json
-import os
 
-import jax
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -13,11 +11,8 @@ from rpmnet_jax.cli import evaluate as eval_cli
 from rpmnet_jax import data
 from rpmnet_jax.evaluation import protocol
 from rpmnet_jax.evaluation import baselines
-from rpmnet_jax.weights import convert
 from rpmnet_jax import metrics
-from rpmnet_jax.nn import pointnets
 from rpmnet_jax.data import synthetic
-from rpmnet_jax.config import RPMNetConfig
 
 NUM_POINTS = 128
 
@@ -26,13 +21,6 @@ NUM_POINTS = 128
 def tiny_root(tmp_path_factory):
     # 26 test shapes cycle through the categories: labels 20..25 form the 6-pair unseen-category test split.
     return synthetic.write_dataset(tmp_path_factory.mktemp("tiny"), num_train=2, num_test=26, seed=3)
-
-
-@pytest.fixture(scope="module")
-def random_weights(tmp_path_factory):
-    path = tmp_path_factory.mktemp("weights") / "random.npz"
-    np.savez(path, **convert.params_to_torch(pointnets.init_params(jax.random.PRNGKey(0), RPMNetConfig())))
-    return str(path)
 
 
 def test_classical_rpm_registers_easy_clean_pair():

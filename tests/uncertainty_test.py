@@ -11,7 +11,7 @@ import rpmnet_jax
 from rpmnet_jax import data
 from rpmnet_jax.cli import register as register_cli
 from rpmnet_jax.ops import se3
-from rpmnet_jax.pairwise import alignment, candidates
+from rpmnet_jax.pairwise import candidates
 
 from conftest import DATA, require
 
