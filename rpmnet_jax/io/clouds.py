@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import warnings
 
 import numpy as np
+
+from rpmnet_jax.io import ply
 
 FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".npz")
 
@@ -56,18 +59,14 @@ def read_cloud(path: str) -> tuple[np.ndarray, np.ndarray | None]:
 
 
 def _read_ply(path):
-    try:
-        from plyfile import PlyData
-    except ImportError:
-        raise CloudError("reading PLY needs plyfile (a dependency of rpmnet_jax): pip install plyfile") from None
-    with warnings.catch_warnings():  # ASCII files with an empty face list make NumPy warn
-        warnings.filterwarnings("ignore", message="loadtxt: input contained no data")
-        vertex = PlyData.read(path)["vertex"].data
-    names = vertex.dtype.names
+    vertex = ply.read_vertices(path)
+    names = vertex.dtype.names or ()
+    if not all(c in names for c in ("x", "y", "z")):
+        raise CloudError(f"{path}: PLY vertices without x y z properties (has {list(names)})")
     cols = [vertex[c] for c in ("x", "y", "z")]
     if all(c in names for c in ("nx", "ny", "nz")):
         cols += [vertex[c] for c in ("nx", "ny", "nz")]
-    return np.stack(cols, axis=1)
+    return np.stack(cols, axis=1).astype(np.float64) if len(vertex) else np.zeros((0, len(cols)))
 
 
 def _read_pcd(path):
@@ -91,7 +90,9 @@ def _read_pcd(path):
     n = int(header["POINTS"][0]) if "POINTS" in header else int(header["WIDTH"][0]) * int(header["HEIGHT"][0])
     kind = header["DATA"][0].lower()
     if kind == "ascii":
-        rows = np.array([l.split() for l in body.decode().splitlines() if l.strip()], dtype=np.float64)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty body: "input contained no data" (the shape check says so)
+            rows = np.loadtxt(io.BytesIO(body), dtype=np.float64, ndmin=2, comments=None)  # NumPy's C parser
         columns, i = {}, 0
         for name, c in zip(fields, counts):
             columns[name] = rows[:, i]
