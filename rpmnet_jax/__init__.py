@@ -8,16 +8,34 @@ orbax). Layers, each importing only those below it: ``ops`` (pure jax.numpy) →
 → ``multiway`` (``align_scans``) → ``data``, ``evaluation``, ``train`` → ``cli``; ``io`` (files) serves them all.
 """
 
-from rpmnet_jax.config import RPMNetConfig
-from rpmnet_jax.geometry.scoring import evaluate_registration
-from rpmnet_jax.multiway.options import ScanOptions
-from rpmnet_jax.multiway.scan_alignment import ScanAlignment, align_scans
-from rpmnet_jax.nn.pointnets import init_params
-from rpmnet_jax.pairwise.alignment import Alignment, Answer, align
-from rpmnet_jax.pairwise.options import GlobalOptions, RefineOptions
-from rpmnet_jax.registration import Registration, register
-from rpmnet_jax.weights import convert
-from rpmnet_jax.weights.loading import load_default_params, load_params
+import importlib
+
+# The public names, imported on first use (PEP 562): ``import rpmnet_jax.io.clouds`` (reading a file, a CLI's input
+# checks) then loads neither JAX nor Flax, and ``rpmnet_jax.align`` loads what it needs when first touched.
+_PUBLIC = {
+    "RPMNetConfig": "rpmnet_jax.config", "evaluate_registration": "rpmnet_jax.geometry.scoring",
+    "ScanOptions": "rpmnet_jax.multiway.options", "ScanAlignment": "rpmnet_jax.multiway.scan_alignment",
+    "align_scans": "rpmnet_jax.multiway.scan_alignment", "init_params": "rpmnet_jax.nn.pointnets",
+    "Alignment": "rpmnet_jax.pairwise.alignment", "Answer": "rpmnet_jax.pairwise.alignment",
+    "align": "rpmnet_jax.pairwise.alignment", "GlobalOptions": "rpmnet_jax.pairwise.options",
+    "RefineOptions": "rpmnet_jax.pairwise.options", "Registration": "rpmnet_jax.registration",
+    "register": "rpmnet_jax.registration", "convert": "rpmnet_jax.weights.convert",
+    "load_default_params": "rpmnet_jax.weights.loading", "load_params": "rpmnet_jax.weights.loading",
+}
+
+
+def __getattr__(name: str):
+    if name not in _PUBLIC:
+        raise AttributeError(f"module 'rpmnet_jax' has no attribute {name!r}")
+    module = importlib.import_module(_PUBLIC[name])
+    value = module if name == "convert" else getattr(module, name)
+    globals()[name] = value  # later lookups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_PUBLIC))
+
 
 __all__ = ["Alignment", "Answer", "GlobalOptions", "RPMNetConfig", "RefineOptions", "Registration", "ScanAlignment",
            "ScanOptions", "align", "align_scans", "convert", "evaluate_registration", "init_params",
