@@ -42,3 +42,34 @@ def test_training_reexecutes_with_the_tunables_and_the_opt_out_holds():
     assert "glibc.malloc.hugetlb=1" in _tunables(True) and "trim_threshold" in _tunables(True)
     assert _tunables(True, RPMNET_NO_HUGEPAGES="1") == "None"
     assert _tunables(False) == "None"
+
+
+class _Terminal:
+    """A stream that says it is a terminal, and keeps what is written to it."""
+
+    def __init__(self, tty=True):
+        self.text, self.tty = [], tty
+
+    def isatty(self):
+        return self.tty
+
+    def write(self, s):
+        self.text.append(s)
+
+    def flush(self):
+        pass
+
+
+def test_progress_bars_follow_the_stages_on_a_terminal_only():
+    for tty, quiet in ((True, False), (False, False), (True, True)):
+        stream = _Terminal(tty)
+        bars = runtime.ProgressBars(quiet, stream=stream)
+        for stage, total in (("network edges", 3), ("refinement round 1", 2)):
+            for done in range(1, total + 1):
+                bars(stage, done, total)
+        bars.close()
+        out = "".join(stream.text)
+        if tty and not quiet:
+            assert "network edges" in out and "3/3" in out and "refinement round 1" in out and "2/2" in out
+        else:
+            assert out == ""  # a log file, a pipe or --quiet: nothing drawn

@@ -45,10 +45,13 @@ def test_align_scans_four_bunny_scans(bunny):
 
 def test_align_scans_without_refinement_keeps_the_network_edges():
     clouds, poses = synthetic_scans()
-    result = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none"))
+    reports = []
+    result = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none"),
+                                    progress=lambda *report: reports.append(report))
     errors = pose_errors.pose_errors(result.poses, poses, clouds)
     assert all(rot < 2.0 for rot, _ in errors), errors  # the network and a short ICP: measured 0.006°
     assert result.edges and {e.stage for e in result.edges} == {"network"} and "refine" not in result.timings
+    assert reports == [("network edges", k, 3) for k in (1, 2, 3)]  # three scans: three candidate pairs, in turn
     with pytest.raises(ValueError, match="at least two scans"):
         rpmnet_jax.align_scans(clouds[:1])
 

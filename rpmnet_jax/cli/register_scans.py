@@ -39,6 +39,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--refine", choices=("icp", "none"), default="icp",
                    help="final ICP rounds over every overlapping pair (default), or none")
     p.add_argument("--seed", type=int, default=0, help="seed of the samplings")
+    p.add_argument("--quiet", action="store_true", help="no progress bars (there are none when stderr is not a "
+                   "terminal either)")
     return p
 
 
@@ -92,10 +94,14 @@ def main(argv=None) -> int:
         t_read = clock.elapsed()
         options = options_lib.ScanOptions(voxel_size=args.voxel_size, refine=args.refine, seed=args.seed,
                                           max_correspondence_distance=args.max_correspondence_distance)
+        bars = runtime.ProgressBars(args.quiet)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            result = scan_alignment.align_scans([c for c, _ in clouds], [n for _, n in clouds], options=options,
-                                                checkpoint=args.checkpoint)
+            try:
+                result = scan_alignment.align_scans([c for c, _ in clouds], [n for _, n in clouds], options=options,
+                                                    checkpoint=args.checkpoint, progress=bars)
+            finally:
+                bars.close()
     except (ValueError, OSError) as e:  # bad input, or a file that is missing, a folder, or unreadable
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2

@@ -89,6 +89,32 @@ def enable_compilation_cache() -> str | None:
     return folder
 
 
+class ProgressBars:
+    """``progress(stage, done, total)`` for a long library call (:func:`rpmnet_jax.align_scans`): one tqdm bar per
+    stage on ``stream`` (stderr), none when ``quiet`` or when ``stream`` is not a terminal (a log file, a pipe)."""
+
+    def __init__(self, quiet: bool = False, stream=None):
+        self.stream = stream if stream is not None else sys.stderr
+        self.quiet = quiet or not self.stream.isatty()
+        self.stage, self.bar = None, None
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if self.quiet:
+            return
+        if stage != self.stage:
+            from tqdm.auto import tqdm
+
+            self.close()
+            self.stage, self.bar = stage, tqdm(total=total, desc=stage, file=self.stream, unit="step")
+        self.bar.total = total
+        self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        self.stage, self.bar = None, None
+
+
 def check_outputs(*paths) -> None:
     """Raises ``ValueError`` (one line) when the folder of any given output path does not exist, before
     anything is computed or written."""

@@ -125,9 +125,10 @@ def _merged(scans, poses, placed, voxel):
     return points, normals_lib.estimate_normals(points)
 
 
-def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed):
+def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, tick):
     """Step 4: registers each unplaced scan onto the merged placed ones (``align``, ``init="global"``), in
-    index order, merging again after each success. Returns (poses, placement edges, scans still pending)."""
+    index order, merging again after each success (``tick(placed, scans)`` then). Returns (poses, placement
+    edges, scans still pending)."""
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
     pending = [s for s in range(len(scans)) if s not in placed]
     edges = []
@@ -146,15 +147,19 @@ def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed):
                           for o in placed]
                 placed.append(s)
                 pending.remove(s)
+                tick(len(placed), len(scans))
                 progress = True
                 break  # the model grew: merge again before the next scan
     return poses, edges, pending
 
 
-def _refine_round(scans, poses, placed, max_dist, min_overlap, refine_points, keep, rng):
-    """Step 5, one round: an ICP edge from the current poses for every placed pair predicted to overlap."""
+def _refine_round(scans, poses, placed, max_dist, min_overlap, refine_points, keep, rng, tick):
+    """Step 5, one round: an ICP edge from the current poses for every placed pair predicted to overlap
+    (``tick(done, total)`` after each pair)."""
     edges = []
-    for i, j in itertools.combinations(sorted(placed), 2):
+    pairs = list(itertools.combinations(sorted(placed), 2))
+    for k, (i, j) in enumerate(pairs):
+        tick(k + 1, len(pairs))
         predicted = np.linalg.inv(poses[j]) @ poses[i]
         if edges_lib.predicted_overlap(scans, i, j, predicted, max_dist) >= min_overlap:
             e = edges_lib.icp_edge(scans, i, j, predicted, max_dist, rng, num_points=refine_points,
@@ -165,13 +170,19 @@ def _refine_round(scans, poses, placed, max_dist, min_overlap, refine_points, ke
 
 
 def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = options_lib.ScanOptions(), params=None,
-                checkpoint=None, cfg: config_lib.RPMNetConfig | None = None) -> ScanAlignment:
+                checkpoint=None, cfg: config_lib.RPMNetConfig | None = None, progress=None) -> ScanAlignment:
     """Registers the scans ``clouds[i] (N_i, 3)`` (normals ``(N_i, 3)`` optional, per scan) into the frame of
     the first one; see the module docstring and :class:`~rpmnet_jax.multiway.options.ScanOptions`.
-    ``checkpoint``: as :func:`rpmnet_jax.align`'s (default the shipped model, or pass ``params``)."""
+    ``checkpoint``: as :func:`rpmnet_jax.align`'s (default the shipped model, or pass ``params``).
+    ``progress``: called as ``progress(stage, done, total)`` as the long stages advance (a CLI draws bars)."""
     if not isinstance(options, options_lib.ScanOptions):
         raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")
     o = options
+
+    def ticker(stage):
+        """``tick(done, total)`` of ``stage``: passed on to ``progress``, if any."""
+        return lambda done, total: progress(stage, done, total) if progress is not None else None
+
     clock = stopwatch.Stopwatch()
     with clock.stage("prepare"):
         scans, voxel, radius = _prepare_scans(clouds, normals, o.voxel_size)
@@ -191,9 +202,11 @@ def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = opti
         pairs = _candidate_pairs(num_scans, o.all_pairs_up_to, o.window)
         starts = edges_lib.network_starts(params, scans, pairs, cfg=cfg, num_points=o.num_points,
                                           num_iters=o.num_iters, batch_size=o.batch_size, seed=o.seed)
-        edges = [edges_lib.icp_edge(scans, i, j, s, max_dist, rng, num_points=NETWORK_ICP_POINTS,
-                                    schedule=icp.NETWORK_EDGE, stage="network")
-                 for (i, j), s in zip(pairs, starts)]
+        tick, edges = ticker("network edges"), []
+        for k, ((i, j), s) in enumerate(zip(pairs, starts)):
+            edges.append(edges_lib.icp_edge(scans, i, j, s, max_dist, rng, num_points=NETWORK_ICP_POINTS,
+                                            schedule=icp.NETWORK_EDGE, stage="network"))
+            tick(k + 1, len(pairs))
         edges = [e for e in edges if good(e, o.min_fitness)]
 
     rejected = []  # 3. robust pose graph over them: the largest consistent component is placed
@@ -208,7 +221,7 @@ def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = opti
     if pending:  # 4. the other scans: global registration onto the merged placed scans
         with clock.stage("global"):
             poses, global_edges, pending = _place_remaining(
-                scans, poses, params, cfg, voxel, max_dist, seed=o.seed,
+                scans, poses, params, cfg, voxel, max_dist, seed=o.seed, tick=ticker("placing the other scans"),
                 accept=lambda fitness, residual: (fitness >= o.min_fitness
                                                   and residual <= o.max_plane_residual * max_dist))
             global_edges = [e for e in global_edges if good(e, o.min_overlap)]
@@ -216,10 +229,10 @@ def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = opti
     # 5. refinement rounds (or, without, one graph of the network and placement edges, at the network's noise)
     placed = [s for s in range(num_scans) if np.isfinite(poses[s, 0, 0])]
     final_edges, final_rejected = edges + global_edges, []
-    for _ in range(o.refine_rounds if o.refine == "icp" and len(placed) > 1 else 0):
+    for r in range(o.refine_rounds if o.refine == "icp" and len(placed) > 1 else 0):
         with clock.stage("refine"):
             round_edges = _refine_round(scans, poses, placed, max_dist, o.min_overlap, o.refine_points,
-                                        lambda e: good(e, o.min_overlap), rng)
+                                        lambda e: good(e, o.min_overlap), rng, ticker(f"refinement round {r + 1}"))
             if not round_edges:
                 break
             poses, final_edges, final_rejected = _solve(num_scans, round_edges, min(placed), noise, o.seed)
