@@ -2,11 +2,12 @@
 objects (one line each, naming the option)."""
 
 import numpy as np
-import jax.numpy as jnp
 
 
 def check_cloud(name: str, x, *, channels: int = 6):
     """Raises ``ValueError`` unless ``x`` is a floating ``(B, N, channels)`` array with ``B, N ≥ 1``."""
+    import jax.numpy as jnp  # here, not at import: the option checks below serve callers that need no JAX
+
     shape = tuple(getattr(x, "shape", np.shape(x)))
     dtype = getattr(x, "dtype", None)
     if dtype is None:

@@ -22,11 +22,6 @@ class Stopwatch:
         finally:
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t
 
-    def timed(self, name: str, fn, *args, **kwargs):
-        """``fn(*args, **kwargs)``, its time added to stage ``name``."""
-        with self.stage(name):
-            return fn(*args, **kwargs)
-
     def elapsed(self) -> float:
         return time.perf_counter() - self._wall0
 

@@ -19,7 +19,8 @@ def test_stages_are_summed_in_the_order_they_first_ran(fake_clock):
     clock = stopwatch.Stopwatch()  # tick 0
     with clock.stage("prepare"):  # ticks 1, 2
         pass
-    assert clock.timed("refine", lambda a, b=0: a + b, 2, b=3) == 5  # ticks 3, 4
+    with clock.stage("refine"):  # ticks 3, 4
+        pass
     with clock.stage("prepare"):  # ticks 5, 6
         pass
     with pytest.raises(RuntimeError), clock.stage("score"):  # ticks 7, 8: counted though it raised

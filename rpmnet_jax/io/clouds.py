@@ -66,7 +66,7 @@ def _read_ply(path):
     cols = [vertex[c] for c in ("x", "y", "z")]
     if all(c in names for c in ("nx", "ny", "nz")):
         cols += [vertex[c] for c in ("nx", "ny", "nz")]
-    return np.stack(cols, axis=1).astype(np.float64) if len(vertex) else np.zeros((0, len(cols)))
+    return np.stack(cols, axis=1).astype(np.float64)
 
 
 def _read_pcd(path):

@@ -132,9 +132,9 @@ def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, t
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
     pending = [s for s in range(len(scans)) if s not in placed]
     edges = []
-    progress = True
-    while pending and progress:
-        progress = False
+    grew = True
+    while pending and grew:
+        grew = False
         model, model_normals = _merged(scans, poses, placed, voxel)
         for s in pending:
             a = alignment.align(scans[s].points, model, scans[s].normals, model_normals, params=params, cfg=cfg,
@@ -148,7 +148,7 @@ def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, t
                 placed.append(s)
                 pending.remove(s)
                 tick(len(placed), len(scans))
-                progress = True
+                grew = True
                 break  # the model grew: merge again before the next scan
     return poses, edges, pending
 

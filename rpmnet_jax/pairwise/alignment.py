@@ -14,8 +14,9 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    hypotheses alone (no network; the identity when they find none);
 3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.geometry.icp`) from
    each start on denser samples of the caller's clouds (``RefineOptions.points`` random source points and
-   up to ``prepare.REFERENCE_FACTOR`` × as many of the reference); the :class:`~rpmnet_jax.pairwise.candidates.Candidate` with
-   the best :func:`~rpmnet_jax.pairwise.candidates.selection_score` wins;
+   up to ``prepare.REFERENCE_FACTOR`` × as many of the reference); the
+   :class:`~rpmnet_jax.pairwise.candidates.Candidate` with the best
+   :func:`~rpmnet_jax.pairwise.candidates.selection_score` wins;
    ``refine="none"`` returns the winning start as it is (with ``init="local"``: the network's answer, the
    paper's method);
 4. score: fitness, inlier RMSE and correspondences of the answer on the full clouds, as Open3D's
@@ -66,7 +67,11 @@ class Alignment(NamedTuple):
     candidates: tuple  # the distinct refined answers (:class:`Answer`, > AMBIGUITY_DEG apart), best first
     ambiguous: bool  # another distinct answer scores within AMBIGUITY_SHARE of the best (a symmetric shape)
     information: np.ndarray  # (6, 6): point-to-plane information of ``transform`` (see :meth:`covariance`)
-    stages: tuple  # the stages that ran, in order: prepare, classical, network, global, refine, score
+
+    @property
+    def stages(self) -> tuple:
+        """The stages that ran, in order (of prepare, classical, network, global, refine, score)."""
+        return tuple(k for k in self.timings if k != "total")
 
     def covariance(self) -> np.ndarray:
         """``(6, 6)`` covariance of the right perturbation ``ξ = (ω, v)`` of ``transform · Exp(ξ)`` (rotation
@@ -181,4 +186,4 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
     return Alignment(transform, aligned, pair.to_callers_units(best.network_transforms), best.confidence,
                      (pair.src6.shape[1], pair.ref6.shape[1]), s.fitness, s.inlier_rmse, rows, best.converged,
                      best.num_iterations, inputs.max_distance, best.init, clock.timings(), answers,
-                     selection.ambiguous, information, tuple(clock.seconds))
+                     selection.ambiguous, information)

@@ -59,11 +59,10 @@ def refine_starts(starts, dense: prepare.DenseClouds | None, max_dist_unit: floa
         score = selection_score(dense, start, max_dist_unit) if dense is not None else UNREFINED_SCORE
         if refine == "icp":
             r = _icp(dense, start, max_dist_unit, **refine_options.icp_kwargs())
+            converged, iters = r.converged, r.num_iterations
             refined_score = selection_score(dense, r.transform, max_dist_unit)
-            if refined_score[0] >= SLID_SHARE * score[0]:
-                final, score, converged, iters = r.transform, refined_score, r.converged, r.num_iterations
-            else:
-                converged, iters = r.converged, r.num_iterations
+            if refined_score[0] >= SLID_SHARE * score[0]:  # else it slid away: the start is kept
+                final, score = r.transform, refined_score
         out.append(Candidate(final, score, s.init, s.network_transforms, s.confidence, converged, iters))
     return out
 
@@ -100,9 +99,8 @@ class Selection(NamedTuple):
 def select(candidates: list, dense: prepare.DenseClouds | None, max_dist_unit: float, refine: str,
            refine_options: options_lib.RefineOptions) -> Selection:
     """The :func:`distinct` candidates, best first, and whether they are ambiguous; the best one's refinement
-    continued (``POLISH_FACTOR`` × the
-    iterations per stage) when it had not converged: every candidate gets the same short budget for the
-    selection, the answer the whole way (the Stanford bunny's bun180 onto bun090, 54% overlap, slides slowly:
+    continued (``POLISH_FACTOR`` × the iterations per stage) when it had not converged: every candidate gets
+    the same short budget for the selection, the answer the whole way (the Stanford bunny's bun180 onto bun090, 54% overlap, slides slowly:
     1.4-2.2 deg off after 20 iterations per stage, 0.23-0.25 deg at convergence, 25-46 iterations)."""
     ranked = distinct(candidates)
     best = ranked[0]

@@ -65,7 +65,8 @@ def screen_hypotheses(params, pair: prepare.PreparedPair, dense: prepare.DenseCl
     polished, scores = [], []
     for t in nets[:, -1]:
         r = icp.point_to_plane_icp(few.src, few.ref, few.ref_normals, se3.to_homogeneous(t), max_dist_unit,
-                                   scales=icp.SCREEN.scales, max_iterations=icp.SCREEN.max_iterations, ref_tree=few.ref_tree)
+                                   scales=icp.SCREEN.scales, max_iterations=icp.SCREEN.max_iterations,
+                                   ref_tree=few.ref_tree)
         polished.append(r.transform[:3])
         scores.append(candidates.selection_score(few, r.transform, max_dist_unit))
     order = sorted(range(len(nets)), key=lambda h: scores[h], reverse=True)[:opts.top_k]

@@ -39,7 +39,7 @@ class PreparedPair(NamedTuple):
     scale: float  # common scale: unit-sphere length = caller's length / scale
     src_rows: np.ndarray  # (N,) int64: the row of each ``src`` point in the caller's source array
     ref_rows: np.ndarray  # (M,) int64
-    src_core: np.ndarray  # (N,) bool: not a stray point (:func:`~rpmnet_jax.geometry.cloud.robust_centre`); only these are sampled
+    src_core: np.ndarray  # (N,) bool: not a stray point (geometry.cloud.robust_centre); only these are sampled
     ref_core: np.ndarray  # (M,) bool
 
     def to_callers_units(self, t_unit) -> np.ndarray:
