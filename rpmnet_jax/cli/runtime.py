@@ -71,7 +71,8 @@ def enable_compilation_cache() -> str | None:
     """Keeps XLA's compiled programs between runs (JAX's persistent compilation cache), so a second
     ``rpmnet-register`` skips the seconds of compilation. The folder is ``$RPMNET_COMPILATION_CACHE``, else
     ``$XDG_CACHE_HOME/rpmnet_jax/xla`` (``~/.cache/rpmnet_jax/xla``); ``RPMNET_COMPILATION_CACHE=off`` turns
-    it off. Returns the folder, or ``None`` when off. CLIs only."""
+    it off (so does a ``JAX_COMPILATION_CACHE_DIR`` already set). Returns the folder, or ``None`` when off. CLIs
+    only."""
     folder = os.environ.get(CACHE_ENV)
     if folder and folder.lower() in ("off", "0", "none", "false"):
         return None
@@ -82,10 +83,15 @@ def enable_compilation_cache() -> str | None:
         os.makedirs(folder, exist_ok=True)
     except OSError:
         return None  # read-only home: run without the cache
-    import jax
-    jax.config.update("jax_compilation_cache_dir", folder)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    settings = {"jax_compilation_cache_dir": folder, "jax_persistent_cache_min_compile_time_secs": 0.5,
+                "jax_persistent_cache_min_entry_size_bytes": 0}
+    if "jax" in sys.modules:  # already imported: JAX has read its environment
+        import jax
+        for name, value in settings.items():
+            jax.config.update(name, value)
+    else:  # JAX reads these when (and if) the run imports it: a run that never needs JAX never loads it
+        for name, value in settings.items():
+            os.environ.setdefault(name.upper(), str(value))
     return folder
 
 

@@ -1,6 +1,7 @@
 """Classical global hypotheses: FPFH correspondences and RANSAC over 3-point samples, verified in one batched,
-jitted call (Open3D's ``registration_ransac_based_on_feature_matching``, with its mutual filter, edge-length
-and distance checkers, made batch-parallel instead of sequential).
+NumPy call per block of samples (Open3D's ``registration_ransac_based_on_feature_matching``, with its mutual
+filter, edge-length and distance checkers, made batch-parallel instead of sequential). NumPy, not JIT: the
+classical path then needs no JAX (no import, no compile: a one-shot CLI run skips both).
 
 Rotation-invariant features make these hypotheses independent of the starting orientation, which the
 network (trained on rotations of up to 45° per axis) is not; :func:`rpmnet_jax.align` refines them
@@ -11,11 +12,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from rpmnet_jax.ops import procrustes, se3
+from rpmnet_jax.ops import se3
 from rpmnet_jax.geometry import fpfh
 
 
@@ -50,36 +49,37 @@ def mutual_correspondences(src_features: np.ndarray, ref_features: np.ndarray) -
 MIN_INLIERS = 3  # a hypothesis must bring at least its own sample's correspondences within the distance
 
 
-def _bucket(n: int) -> int:
-    """Padded size for ``n`` correspondences (few distinct compiled shapes)."""
-    return max(64, 1 << int(np.ceil(np.log2(max(n, 1)))))
-
-
 def _moved_sq_distances(t, src_c, ref_c):
     """``|R_m s_c + t_m - r_c|² (M, C)`` for transforms ``t (M, 3, 4)`` and pairs ``src_c, ref_c (C, 3)``, as one
     ``(M, 15) @ (15, C)`` product (|s|² + |r|² + |t|² + 2 (Rᵀt)·s - 2 t·r - 2 vec(R)·vec(r sᵀ)) instead of
     materialising the ``(M, C, 3)`` moved points: 5x faster on the CPU (4,096 samples, 512 pairs)."""
     rot, trans = t[:, :, :3], t[:, :, 3]
-    per_t = jnp.concatenate([rot.reshape(-1, 9), jnp.einsum("mji,mj->mi", rot, trans), trans], axis=1)  # (M, 15)
-    per_c = jnp.concatenate([-2.0 * (ref_c[:, :, None] * src_c[:, None, :]).reshape(-1, 9), 2.0 * src_c,
-                             -2.0 * ref_c], axis=1)  # (C, 15)
-    # full float32 products: the terms cancel to ~0.0056 near the threshold, TF32 (a GPU's default) loses it
-    return (jnp.matmul(per_t, per_c.T, precision=jax.lax.Precision.HIGHEST) + jnp.sum(trans**2, -1)[:, None]
-            + (jnp.sum(src_c**2, -1) + jnp.sum(ref_c**2, -1))[None])
+    per_t = np.concatenate([rot.reshape(-1, 9), np.einsum("mji,mj->mi", rot, trans), trans], axis=1)  # (M, 15)
+    per_c = np.concatenate([-2.0 * (ref_c[:, :, None] * src_c[:, None, :]).reshape(-1, 9), 2.0 * src_c,
+                            -2.0 * ref_c], axis=1)  # (C, 15)
+    return per_t @ per_c.T + np.sum(trans**2, -1)[:, None] + (np.sum(src_c**2, -1) + np.sum(ref_c**2, -1))[None]
 
 
-@jax.jit
-def _score_samples(src_c, ref_c, valid, samples, max_distance):
-    """Transforms ``(M, 3, 4)`` of 3-point samples ``(M, 3)`` of correspondences ``src_c, ref_c (C, 3)``
-    (``valid (C,)`` marks the unpadded ones) and their inlier counts ``(M,)``, -1 where the sample's own points
-    do not land within ``max_distance`` (Open3D's distance checker)."""
+def _kabsch(a, b):
+    """Rigid transforms ``(M, 3, 4)`` mapping 3-point samples ``a (M, 3, 3)`` onto ``b`` (least squares,
+    reflection fixed)."""
+    ca, cb = a.mean(axis=1), b.mean(axis=1)
+    u, _, vh = np.linalg.svd(np.swapaxes(a - ca[:, None], 1, 2) @ (b - cb[:, None]))
+    v = np.swapaxes(vh, 1, 2)
+    v[:, :, 2] *= np.sign(np.linalg.det(v @ np.swapaxes(u, 1, 2)))[:, None]
+    rot = v @ np.swapaxes(u, 1, 2)
+    return np.concatenate([rot, (cb - np.einsum("mij,mj->mi", rot, ca))[:, :, None]], axis=2)
+
+
+def _score_samples(src_c, ref_c, samples, max_distance):
+    """Transforms ``(M, 3, 4)`` of 3-point samples ``(M, 3)`` of correspondences ``src_c, ref_c (C, 3)`` and their
+    inlier counts ``(M,)``, -1 where the sample's own points do not land within ``max_distance`` (Open3D's
+    distance checker)."""
     a, b = src_c[samples], ref_c[samples]  # (M, 3, 3)
-    t = procrustes.weighted_procrustes(a, b, jnp.ones(a.shape[:2], a.dtype))
-    moved = se3.apply(t, a)
-    dist_ok = jnp.all(jnp.linalg.norm(moved - b, axis=-1) <= max_distance, axis=-1)
-    close = _moved_sq_distances(t, src_c, ref_c) <= max_distance**2  # (M, C)
-    inliers = jnp.sum(close & valid[None], axis=-1)
-    return t, jnp.where(dist_ok, inliers, -1)
+    t = _kabsch(a, b)
+    dist_ok = np.all(np.linalg.norm(se3.apply(t, a) - b, axis=-1) <= max_distance, axis=-1)
+    inliers = np.count_nonzero(_moved_sq_distances(t, src_c, ref_c) <= max_distance**2, axis=-1)
+    return t, np.where(dist_ok, inliers, -1)
 
 
 def _edge_lengths_agree(a: np.ndarray, b: np.ndarray, edge_ratio: float) -> np.ndarray:
@@ -98,18 +98,14 @@ def ransac_hypotheses(src: np.ndarray, ref: np.ndarray, correspondences: np.ndar
 
     ``samples`` random 3-point samples are drawn (``seed``); a sample whose edge lengths disagree by more than
     ``edge_ratio`` is rejected before it is solved (NumPy), one whose points do not land within
-    ``max_distance`` after (in the batched, jitted solve of ``chunk`` samples); the rest are ranked by how
-    many correspondences they bring within ``max_distance``.
+    ``max_distance`` after (solved ``chunk`` samples at a time); the rest are ranked by how many
+    correspondences they bring within ``max_distance``.
     """
     c = len(correspondences)
     if c < 3:
         return Hypotheses(np.zeros((0, 4, 4)), np.zeros((0,), np.int64), c)
-    size = _bucket(c)
-    src_c = np.zeros((size, 3), np.float32)
-    ref_c = np.zeros((size, 3), np.float32)
-    src_c[:c] = src[correspondences[:, 0]]
-    ref_c[:c] = ref[correspondences[:, 1]]
-    valid = np.arange(size) < c
+    src_c = np.asarray(src, np.float64)[correspondences[:, 0]]
+    ref_c = np.asarray(ref, np.float64)[correspondences[:, 1]]
     rng = np.random.default_rng(seed)
     draws = rng.integers(0, c, (samples, 3))  # (M, 3); samples that repeat a correspondence are dropped
     repeated = (draws[:, 0] == draws[:, 1]) | (draws[:, 1] == draws[:, 2]) | (draws[:, 0] == draws[:, 2])
@@ -119,10 +115,7 @@ def ransac_hypotheses(src: np.ndarray, ref: np.ndarray, correspondences: np.ndar
     scores = np.full(samples, -1, np.int64)
     for start in range(0, len(passing), chunk):  # only the samples the cheap checker passes are solved
         part = passing[start:start + chunk]
-        padded = np.concatenate([part, np.repeat(part[:1], chunk - len(part))])  # one compiled shape
-        t, s = _score_samples(src_c, ref_c, valid, draws[padded].astype(np.int32), np.float32(max_distance))
-        transforms[part] = np.asarray(t, np.float64)[:len(part)]
-        scores[part] = np.asarray(s)[:len(part)]
+        transforms[part], scores[part] = _score_samples(src_c, ref_c, draws[part], max_distance)
     order = np.argsort(-scores, kind="stable")
     ranked = order[scores[order] >= MIN_INLIERS]
     picked = ranked[se3.distinct_rotations(transforms[ranked, :, :3], min_angle_deg, top_k)]

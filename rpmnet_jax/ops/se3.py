@@ -1,19 +1,22 @@
 """Rigid transforms stored as ``(*, 3, 4)`` matrices ``[R | t]``; any leading batch axes.
 
 The one set of rigid-transform helpers: they take JAX arrays (traceable, any dtype) or NumPy arrays (computed
-in NumPy, so float64 host-side metrics stay float64).
+in NumPy, so float64 host-side metrics stay float64, and NumPy callers never import JAX).
 """
 
-import jax.numpy as jnp
 import numpy as np
 
 
 def _xp(*arrays):
-    return np if all(isinstance(a, np.ndarray) for a in arrays) else jnp
+    if all(isinstance(a, np.ndarray) for a in arrays):
+        return np
+    import jax.numpy as jnp  # only for JAX callers: the classical pipeline runs without importing JAX
+    return jnp
 
 
-def identity(batch_shape=(), dtype=jnp.float32):
-    """Identity transform of shape ``(*batch_shape, 3, 4)``."""
+def identity(batch_shape=(), dtype="float32"):
+    """Identity transform of shape ``(*batch_shape, 3, 4)`` (a JAX array)."""
+    import jax.numpy as jnp
     eye = jnp.eye(3, 4, dtype=dtype)
     return jnp.broadcast_to(eye, tuple(batch_shape) + (3, 4))
 

@@ -120,8 +120,14 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
             icp=refine == "icp", dense_points=refine_options.points if (refine == "icp" or init != "local") else None,
             max_correspondence_distance=max_correspondence_distance, relative_distance=DEFAULT_RELATIVE_DISTANCE)
     pair, dense, max_dist_unit = inputs.pair, inputs.dense, inputs.max_distance_unit
-    params = params if params is not None else loading.load_params(checkpoint)
     cfg = cfg or config_lib.RPMNetConfig()
+    if params is None and checkpoint is not None:  # a caller's checkpoint is checked (and refused) up front
+        params = loading.load_params(checkpoint)
+
+    def network_params():  # the shipped model is loaded when the network runs: a classical answer never reads it
+        nonlocal params
+        params = params if params is not None else loading.load_params(checkpoint)
+        return params
 
     # 2-3. starts, each refined and scored as it comes: classical first, the network when they are weak, the
     # network's global search when still no answer is good
@@ -140,12 +146,13 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
         found += refined(classical) if classical else []
     if init == "local" or (init == "auto" and _needs_network(found, global_options)):
         with clock.stage("network"):
-            local = starts_lib.local_start(params, pair, cfg, num_iters)
+            local = starts_lib.local_start(network_params(), pair, cfg, num_iters)
         found += refined([local])
     if init == "global" or (init == "auto" and max((c.score[1] for c in found), default=0.0)
                             < global_options.auto_fitness):
         with clock.stage("global"):
-            screened = global_search.screen_hypotheses(params, pair, dense, cfg, global_options, max_dist_unit, seed)
+            screened = global_search.screen_hypotheses(network_params(), pair, dense, cfg, global_options,
+                                                       max_dist_unit, seed)
         if refine != "icp":  # the network's answers as they are
             screened = [s._replace(transform=s.network_transforms[-1]) for s in screened]
         found += refined(screened)

@@ -15,7 +15,6 @@ import functools
 
 import numpy as np
 
-from rpmnet_jax import registration
 from rpmnet_jax.geometry import icp, sampling
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import candidates, options as options_lib, prepare, starts
@@ -54,6 +53,8 @@ def screen_hypotheses(params, pair: prepare.PreparedPair, dense: prepare.DenseCl
     and returns the ``opts.top_k`` :class:`~rpmnet_jax.pairwise.starts.Start` s by selection score (polished),
     best first. (A network answer a few degrees off scores a low fitness at a tight threshold; the short ICP
     makes the scores of right answers comparable.)"""
+    from rpmnet_jax import registration  # JAX: imported when the network runs, not by the classical path
+
     rng = np.random.default_rng(seed)
     src = pair.src6[:, sampling.sample_indices(rng, pair.src6.shape[1], opts.points)]
     ref = pair.ref6[:, sampling.sample_indices(rng, pair.ref6.shape[1], opts.points)]
@@ -73,7 +74,7 @@ def screen_hypotheses(params, pair: prepare.PreparedPair, dense: prepare.DenseCl
     return [starts.Start("global", nets[h], float(confidences[h]), polished[h]) for h in order]
 
 
-def _transforms_and_confidence(reg: registration.Registration):
+def _transforms_and_confidence(reg):
     """The network's transforms ``(I, H, 3, 4)`` and confidences ``(H,)`` of a batched run (what the screen
     keeps: the per-iteration match matrices of every hypothesis are never materialised)."""
     return reg.transforms, starts.confidence(reg.perm_matrices[-1])

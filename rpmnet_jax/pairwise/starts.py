@@ -8,7 +8,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax import registration
 from rpmnet_jax.geometry import feature_ransac
 from rpmnet_jax.pairwise import prepare
 
@@ -29,6 +28,7 @@ def identity_start() -> Start:
 
 def local_start(params, pair: prepare.PreparedPair, cfg, num_iters: int) -> Start:
     """The network once from the identity (the paper's method) as a :class:`Start`."""
+    from rpmnet_jax import registration  # JAX: imported when the network runs, not by the classical path
     reg = registration.jitted(cfg, int(num_iters))(params, pair.src6, pair.ref6)
     perm = np.asarray(reg.perm_matrices[-1, 0])
     net_ts = np.asarray(reg.transforms[:, 0], np.float64)
