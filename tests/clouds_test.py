@@ -1,5 +1,5 @@
-"""Point-cloud and transform files: every format round-trips float64 exactly, ASCII PCD and PLY read, bad
-files are one-line ``CloudError`` s."""
+"""Point-cloud and transform files: every format round-trips float64 exactly (LAS within its scale), with colours,
+intensity and NaN rows; ASCII PCD and PLY read; bad files are one-line ``CloudError`` s."""
 
 import json
 
@@ -29,6 +29,30 @@ def test_cloud_files_round_trip(tmp_path, ext, with_normals):
         np.testing.assert_array_equal(got_n, nrm)
     else:
         assert got_n is None
+
+
+@pytest.mark.parametrize("ext", [".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".npz", ".las", ".laz", ".e57"])
+@pytest.mark.parametrize("colour_max", [255, 65535])
+def test_colours_intensity_and_nan_rows_round_trip(tmp_path, ext, colour_max):
+    if ext in (".las", ".laz", ".e57"):
+        pytest.importorskip("laspy" if ext != ".e57" else "pye57")
+    pts, nrm = _shape()
+    pts = pts * 100 + 7
+    pts[3] = np.nan
+    rng = np.random.default_rng(4)
+    rgb, intensity = rng.integers(0, colour_max + 1, (len(pts), 3)).astype(np.float64), rng.normal(size=len(pts))
+    path = str(tmp_path / f"cloud{ext}")
+    cloud_io.write_cloud(path, pts, nrm, rgb, intensity)
+    got = cloud_io.read(path)
+    assert got.points.shape == pts.shape and np.isnan(got.points[3]).all()
+    keep = np.arange(len(pts)) != 3
+    np.testing.assert_allclose(got.points[keep], pts[keep], rtol=0, atol=1e-6 if ext in (".las", ".laz") else 0)
+    np.testing.assert_array_equal(got.colours, rgb)
+    np.testing.assert_array_equal(got.intensity, intensity)
+    if ext == ".e57":
+        assert got.normals is None  # E57's core standard has no normals
+    else:
+        np.testing.assert_array_equal(got.normals, nrm)
 
 
 def test_ascii_pcd_and_ascii_ply(tmp_path):
@@ -73,20 +97,27 @@ def test_candidates_file_holds_every_answer_exactly(tmp_path):
 
 @pytest.mark.parametrize("case,message", [("unknown_ext", "unknown point-cloud format"), ("missing", "no such file"),
                                           ("folder", "is a folder"), ("empty", "empty"),
-                                          ("columns", "N×3"), ("garbage", "cannot read as PLY"),
-                                          ("npz_names", "needs a 'points' array")])
+                                          ("columns", "ambiguous"), ("garbage", "cannot read as PLY"),
+                                          ("npz_names", "needs a 'points' array"),
+                                          ("columns_on_las", "--columns applies to"), ("bad_column", "unknown column")])
 def test_bad_files_are_one_line_cloud_errors(tmp_path, case, message):
     path = {
         "unknown_ext": lambda: tmp_path / "cloud.obj",
         "missing": lambda: tmp_path / "nope.ply",
         "folder": lambda: (tmp_path / "dir.ply").mkdir() or tmp_path / "dir.ply",
         "empty": lambda: np.save(tmp_path / "e.npy", np.zeros((0, 3))) or tmp_path / "e.npy",
-        "columns": lambda: np.save(tmp_path / "c.npy", np.zeros((5, 4))) or tmp_path / "c.npy",
+        "columns": lambda: np.save(tmp_path / "c.npy", np.zeros((5, 5))) or tmp_path / "c.npy",
         "garbage": lambda: (tmp_path / "g.ply").write_bytes(b"not a ply") and tmp_path / "g.ply",
         "npz_names": lambda: np.savez(tmp_path / "n.npz", a=np.zeros((5, 3)), b=np.zeros((5, 3))) or tmp_path / "n.npz",
+        "columns_on_las": lambda: tmp_path / "c.las",
+        "bad_column": lambda: np.save(tmp_path / "b.npy", np.zeros((5, 3))) or tmp_path / "b.npy",
     }[case]()
+    columns = {"columns_on_las": "x,y,z", "bad_column": "x,y,zed"}.get(case)
+    if case == "columns_on_las":
+        pytest.importorskip("laspy")
+        cloud_io.write_cloud(str(path), np.zeros((5, 3)))
     with pytest.raises(cloud_io.CloudError, match=message) as info:
-        cloud_io.read_cloud(str(path))
+        cloud_io.read_cloud(str(path), columns=columns)
     assert isinstance(info.value, ValueError) and "\n" not in str(info.value)
 
 

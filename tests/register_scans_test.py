@@ -104,3 +104,62 @@ def test_cli_leaves_out_a_scan_that_overlaps_nothing(tmp_path, capsys):
         assert rotation_error_deg(got[n][:3, :3], truth[:3, :3]) < 1.0
     points, _ = cloud_io.read_cloud(str(merged))
     assert 1000 < len(points) < sum(len(c) for c in clouds) and plot.stat().st_size > 0
+
+def test_e57_with_three_scans_registers_as_three_files(tmp_path, capsys):
+    """One E57 file holding the three scans, each with a stored pose a few degrees off: the same relative poses as
+    three separate files give, written in the file's frame (the first scan keeps its stored pose)."""
+    pytest.importorskip("pye57")
+    from scipy.spatial.transform import Rotation
+
+    from rpmnet_jax.io import columns, e57
+
+    clouds, poses = synthetic_scans()
+    paths = _write_scans(tmp_path, clouds, ["s0", "s1", "s2"])
+    rc = register_scans.main(paths + ["--out-poses", str(tmp_path / "files.conf")])
+    assert rc == 0, capsys.readouterr().err
+    from_files = scan_poses.read_poses(str(tmp_path / "files.conf"))
+    nudge = np.eye(4)
+    nudge[:3, :3] = Rotation.from_euler("xyz", [2, -3, 1], degrees=True).as_matrix()
+    nudge[:3, 3] = [0.004, -0.002, 0.003]
+    stored = [p @ nudge if k else p for k, p in enumerate(poses)]  # a starting guess, not the answer
+    e57.write(str(tmp_path / "scans.e57"), [e57.Scan(columns.Cloud(c), None, p) for c, p in zip(clouds, stored)])
+    merged = tmp_path / "merged.ply"
+    rc = register_scans.main([str(tmp_path / "scans.e57"), "--out-poses", str(tmp_path / "e57.conf"), "--out-merged",
+                              str(merged)])
+    out = capsys.readouterr().out
+    assert rc == 0 and "3 of 3 scans have stored poses" in out
+    from_e57 = scan_poses.read_poses(str(tmp_path / "e57.conf"))
+    assert list(from_e57) == ["scans.e57#0", "scans.e57#1", "scans.e57#2"]
+    first = from_e57["scans.e57#0"]
+    np.testing.assert_allclose(first, poses[0], atol=1e-8)  # the first scan stays where its pose put it
+    for k in (1, 2):
+        relative = np.linalg.inv(first) @ from_e57[f"scans.e57#{k}"]
+        want = from_files[f"s{k}"]
+        assert rotation_error_deg(relative[:3, :3], want[:3, :3]) < 0.05
+        assert np.abs(relative[:3, 3] - want[:3, 3]).max() < 2e-4  # the shape is ~0.2 across
+    assert len(cloud_io.read(str(merged)).points) == sum(len(c) for c in clouds)
+
+
+def test_scanner_files_with_bad_input_exit_2_and_write_nothing(tmp_path, capsys):
+    laspy = pytest.importorskip("laspy")
+    pytest.importorskip("pye57")
+    from rpmnet_jax.io import columns, e57
+
+    a = np.random.default_rng(0).normal(size=(300, 3))
+    cloud_io.write_cloud(str(tmp_path / "a.xyz"), a)
+    laspy.LasData(laspy.LasHeader(point_format=6, version="1.4")).write(str(tmp_path / "empty.las"))
+    e57.write(str(tmp_path / "one.e57"), [columns.Cloud(a)])
+    np.savetxt(tmp_path / "rgb.txt", np.c_[a, np.full((300, 3), 9.0)])
+    out = tmp_path / "poses.conf"
+    cases = {
+        "no points": [str(tmp_path / "a.xyz"), str(tmp_path / "empty.las")],
+        "at least two": [str(tmp_path / "one.e57")],
+        "--columns applies to": [str(tmp_path / "a.xyz"), str(tmp_path / "one.e57"), "--columns", "x,y,z"],
+        "unknown column name": [str(tmp_path / "a.xyz"), str(tmp_path / "a.xyz"), "--columns", "x,y,w"],
+        "not unit normals": [str(tmp_path / "a.xyz"), str(tmp_path / "rgb.txt")],
+    }
+    for message, scans in cases.items():
+        rc = register_scans.main(scans + ["--out-poses", str(out), "--out-merged", str(tmp_path / "m.ply")])
+        err = capsys.readouterr().err
+        assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, (message, err)
+        assert not out.exists() and not (tmp_path / "m.ply").exists()

@@ -188,3 +188,66 @@ def test_console_entry_points_start(module):
                          capture_output=True, text=True, env=dict(os.environ, RPMNET_COMPILATION_CACHE="off"))
     assert out.returncode == 0, out.stderr[-2000:]
     assert "usage:" in out.stdout
+
+def _registered(tmp_path, capsys, random_weights, src, ref, out_a, *extra):
+    """Runs the CLI quickly (128 points, one iteration, local start); returns the transform it wrote."""
+    out_t = tmp_path / "T.json"
+    code, _, err = _run_cli([src, ref, "--checkpoint", random_weights, "--num-points", "128", "--iters", "1",
+                             "--init", "local", "--out-transform", str(out_t), "--out-aligned", str(out_a), *extra],
+                            capsys)
+    assert code == 0, err
+    return cloud_io.read_transform(str(out_t))
+
+
+@pytest.mark.parametrize("header,out_ext", [("//X Y Z R G B", ".ply"), ("x,y,z,r,g,b", ".txt"), (None, ".pcd")])
+def test_xyzrgb_text_keeps_its_colours(tmp_path, capsys, random_weights, header, out_ext):
+    """An XYZRGB export: colours are never read as normals; they come out with the aligned points."""
+    pts, _ = synthetic_shape(seed=2, n=500)
+    rgb = np.random.default_rng(0).integers(0, 256, (len(pts), 3)).astype(np.float64)
+    src = tmp_path / "src.txt"
+    np.savetxt(src, np.c_[pts, rgb], fmt="%.17g", delimiter="," if header and "," in header else " ",
+               header=header or "", comments="")
+    ref = _write(tmp_path, "ref.npy", pts @ Rotation.from_euler("z", 10, degrees=True).as_matrix().T)
+    out_a = tmp_path / f"aligned{out_ext}"
+    extra = ["--columns", "x,y,z,r,g,b", "--ref-columns", "x,y,z"] if header is None else []
+    t = _registered(tmp_path, capsys, random_weights, str(src), ref, out_a, *extra)
+    got = cloud_io.read(str(out_a))
+    np.testing.assert_allclose(got.points, pts @ t[:3, :3].T + t[:3, 3], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(got.colours, rgb)
+    assert got.normals is None
+
+
+@pytest.mark.parametrize("out_ext", [".ply", ".las", ".e57", ".csv"])
+def test_xyzi_ply_keeps_its_intensity(tmp_path, capsys, random_weights, out_ext):
+    from plyfile import PlyData, PlyElement
+
+    if out_ext in (".las", ".e57"):
+        pytest.importorskip("laspy" if out_ext == ".las" else "pye57")
+    pts, _ = synthetic_shape(seed=4, n=500)
+    table = np.empty(len(pts), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), ("intensity", "f4")])
+    for k, name in enumerate("xyz"):
+        table[name] = pts[:, k]
+    table["intensity"] = np.arange(len(pts)) % 300
+    src = str(tmp_path / "src.ply")
+    PlyData([PlyElement.describe(table, "vertex")]).write(src)
+    out_a = tmp_path / f"aligned{out_ext}"
+    t = _registered(tmp_path, capsys, random_weights, src, _write(tmp_path, "ref.npy", pts + 0.01), out_a)
+    got = cloud_io.read(str(out_a))
+    np.testing.assert_allclose(got.points, pts @ t[:3, :3].T + t[:3, 3], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(got.intensity, table["intensity"])
+
+
+@pytest.mark.parametrize("case,message", [("headerless_rgb", "--columns"), ("unknown", "unknown column name"),
+                                          ("count", "names 4 columns, the file has 6")])
+def test_bad_columns_exit_2_and_write_nothing(tmp_path, capsys, random_weights, case, message):
+    pts, _ = synthetic_shape(n=300)
+    src = tmp_path / "src.xyz"
+    np.savetxt(src, np.c_[pts, np.full((len(pts), 3), 200.0)], fmt="%.17g")
+    ref = _write(tmp_path, "ref.npy", pts)
+    extra = {"headerless_rgb": [], "unknown": ["--columns", "x,y,z,rouge,g,b"], "count": ["--columns", "x,y,z,_"]}[case]
+    out_t, out_a = tmp_path / "T.txt", tmp_path / "a.ply"
+    code, out, err = _run_cli([str(src), ref, "--checkpoint", random_weights, "--out-transform", str(out_t),
+                               "--out-aligned", str(out_a), *extra], capsys)
+    assert code == 2 and out == "" and message in err, err
+    assert err.startswith("rpmnet-register: error:") and len(err.strip().splitlines()) == 1, err
+    assert not out_t.exists() and not out_a.exists()

@@ -16,7 +16,8 @@ from rpmnet_jax.cli import runtime
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="rpmnet-register", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("src", help="source cloud (.ply .pcd .xyz .txt .csv .npy .npz), moved onto the reference")
+    p.add_argument("src", help="source cloud (.ply .pcd .xyz .txt .csv .npy .npz .las .laz .e57), moved onto the "
+                   "reference")
     p.add_argument("ref", help="reference cloud")
     p.add_argument("--checkpoint", default=None,
                    help="orbax training dir, .npz or official .pth (default: the shipped model)")
@@ -32,6 +33,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--centering", choices=("separate", "common"), default="separate",
                    help="centre each cloud on its own centroid (default) or both on their joint centroid")
     p.add_argument("--estimate-normals", action="store_true", help="re-estimate normals even if the files have them")
+    p.add_argument("--columns", default=None,
+                   help="what the columns of the input files are, by position, e.g. x,y,z,r,g,b (names: x y z nx ny nz "
+                        "r g b or red green blue, intensity, _ to skip); default: the files' own names (PLY, PCD, a "
+                        "text header), else 3 columns x y z, 4 x y z intensity, 6 x y z and unit normals")
+    p.add_argument("--ref-columns", default=None, help="the reference's columns when they differ from --columns")
     p.add_argument("--init", choices=("auto", "local", "global", "classical"), default="auto",
                    help="starts: auto (FPFH + RANSAC hypotheses; the network from the identity when the best "
                         "fits poorly or is ambiguous, its global search when still none fits well; default), "
@@ -64,8 +70,10 @@ def main(argv=None) -> int:
             raise ValueError(f"--out-candidates must name a .json file, got {args.out_candidates}")
         if args.out_aligned:
             cloud_io.check_format(args.out_aligned)
-        src, src_n = cloud_io.read_cloud(args.src)
-        ref, ref_n = cloud_io.read_cloud(args.ref)
+        source = cloud_io.read(args.src, columns=args.columns)  # colours and intensity go to --out-aligned
+        src, src_n = source.points, source.normals
+        ref_columns = args.columns if args.ref_columns is None else args.ref_columns
+        ref, ref_n = cloud_io.read_cloud(args.ref, columns=ref_columns)
         if args.checkpoint is None and not loading.has_default():
             raise ValueError("no shipped model in this install; pass --checkpoint")
         t0 = time.time()
@@ -112,7 +120,7 @@ def main(argv=None) -> int:
                                  timings=result.timings)
     if args.out_aligned:  # row for row as the source file (NaN rows stay NaN)
         aligned_n = None if src_n is None else src_n @ result.transform[:3, :3].T
-        cloud_io.write_cloud(args.out_aligned, result.aligned, aligned_n)
+        cloud_io.write_cloud(args.out_aligned, result.aligned, aligned_n, source.colours, source.intensity)
     if args.plot:
         plots.plot_alignment(args.plot, src, ref, result.aligned)
     return 0

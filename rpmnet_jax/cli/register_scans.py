@@ -6,6 +6,10 @@ A folder stands for its point-cloud files (sorted by name). ``poses.conf`` has o
 vector ``p`` with ``R`` the quaternion's matrix, as the Stanford ``bun.conf``); the first placed scan is the
 identity. A scan that overlaps none of the placed scans is reported and left out of the outputs.
 
+An E57 file with several scans is a scan set: each scan is named by its own name (when the names are unique
+and have no spaces) or ``FILE.e57#i``; scans with stored poses start from them (each moved into the file's
+frame first), and the poses written are then scan -> the file's frame, the first scan keeping its stored pose.
+
 Exit codes: 0 success, 2 bad input or arguments (one-line message, nothing written).
 """
 
@@ -23,12 +27,17 @@ PROG = "rpmnet-register-scans"
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scans", nargs="+", help="scan files (.ply .pcd .xyz .txt .csv .npy .npz) or folders of them")
+    p.add_argument("scans", nargs="+", help="scan files (.ply .pcd .xyz .txt .csv .npy .npz .las .laz .e57) or "
+                   "folders of them; an E57 file with several scans gives each of them")
     p.add_argument("--out-poses", required=True, help="write the poses as a Stanford .conf")
     p.add_argument("--out-merged", default=None,
                    help="write all placed scans in the common frame as one cloud (float64; format from the extension)")
     p.add_argument("--merged-voxel", type=float, default=None,
-                   help="voxel-downsample the merged cloud to this size (scans' units; default: every point)")
+                   help="voxel-downsample the merged cloud to this size (scans' units; default: every point, with "
+                        "the scans' colours and intensity when every scan has them)")
+    p.add_argument("--columns", default=None,
+                   help="what the columns of every scan file are, by position, e.g. x,y,z,r,g,b (names: x y z nx ny "
+                        "nz r g b or red green blue, intensity, _ to skip); default: the files' own names")
     p.add_argument("--plot", default=None, help="PNG of the merged scans, one colour per scan")
     p.add_argument("--checkpoint", default=None,
                    help="orbax training dir, .npz or official .pth (default: the shipped model)")
@@ -57,13 +66,40 @@ def _scan_paths(args) -> list:
             paths += found
         else:
             paths.append(arg)
-    if len(paths) < 2:
-        raise ValueError(f"need at least two scans, got {len(paths)}")
-    names = [os.path.basename(p) for p in paths]
+    return paths
+
+
+def _read_scans(paths: list, columns) -> tuple:
+    """``(labels, clouds, stored poses (4, 4), notes)``: one scan per file, or per scan of a multi-scan E57 file
+    (label ``FILE.e57#i`` or the scan's name), moved by its stored pose when it has one."""
+    import numpy as np
+
+    from rpmnet_jax.io import clouds as cloud_io, e57
+
+    labels, clouds, stored, notes = [], [], [], []
+    for path in paths:
+        scans = e57.read_scans(path) if path.lower().endswith(".e57") and columns is None else []
+        if len(scans) < 2:
+            labels.append(path)
+            clouds.append(cloud_io.read(path, columns=columns))
+            stored.append(np.eye(4))
+            continue
+        names = [s.name for s in scans]
+        usable = len(set(names)) == len(names) and all(n and n.split() == [n] and "/" not in n for n in names)
+        labels += [os.path.join(os.path.dirname(path), n) if usable else f"{path}#{i}" for i, n in enumerate(names)]
+        clouds += [s.cloud if s.pose is None else s.cloud.moved(s.pose) for s in scans]
+        stored += [np.eye(4) if s.pose is None else s.pose for s in scans]
+        posed = sum(s.pose is not None for s in scans)
+        if posed:
+            notes.append(f"{os.path.basename(path)}: {posed} of {len(scans)} scans have stored poses; starting from "
+                         "them (poses written in the file's frame)")
+    if len(labels) < 2:
+        raise ValueError(f"need at least two scans, got {len(labels)}")
+    names = [os.path.basename(p) for p in labels]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise ValueError(f"duplicate scan names {repeated}: the .conf names scans by file name; rename them")
-    return paths
+    return labels, clouds, stored, notes
 
 
 def main(argv=None) -> int:
@@ -87,8 +123,8 @@ def main(argv=None) -> int:
             cloud_io.check_format(args.out_merged)
         if args.merged_voxel is not None and not args.merged_voxel > 0:
             raise ValueError(f"--merged-voxel must be > 0, got {args.merged_voxel}")
-        paths = _scan_paths(args.scans)
-        clouds = [cloud_io.read_cloud(p) for p in paths]
+        paths, scans, stored, notes = _read_scans(_scan_paths(args.scans), args.columns)
+        clouds = [(c.points, c.normals) for c in scans]  # in a multi-scan E57 file's frame when it has poses
         if args.checkpoint is None and not loading.has_default():
             raise ValueError("no shipped model in this install; pass --checkpoint")
         t_read = clock.elapsed()
@@ -106,6 +142,8 @@ def main(argv=None) -> int:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
     names = [os.path.basename(p) for p in paths]
+    for note in notes:
+        print(note)
     for w in caught:
         if not issubclass(w.category, scan_alignment.LeftOutWarning):  # said below, by name
             print(f"{PROG}: warning: {w.message}", file=sys.stderr)
@@ -125,7 +163,7 @@ def main(argv=None) -> int:
           f"max_correspondence_distance {result.max_correspondence_distance:.4g}; time {clock.elapsed():.2f} s "
           f"(read {t_read:.2f}  {stages})")
 
-    poses_io.write_poses(args.out_poses, [names[s] for s in placed], result.poses[placed])
+    poses_io.write_poses(args.out_poses, [names[s] for s in placed], [result.poses[s] @ stored[s] for s in placed])
     finite = {s: np.all(np.isfinite(clouds[s][0]), axis=1) for s in placed}  # rows align_scans dropped too
     moved = {s: clouds[s][0][finite[s]] @ result.poses[s, :3, :3].T + result.poses[s, :3, 3] for s in placed}
     if args.out_merged:
@@ -135,9 +173,12 @@ def main(argv=None) -> int:
             normals = np.concatenate([clouds[s][1][finite[s]] @ result.poses[s, :3, :3].T for s in placed])
             if not np.all(np.isfinite(normals)):
                 normals = None
+        extras = {k: np.concatenate([getattr(scans[s], k)[finite[s]] for s in placed])
+                  for k in ("colours", "intensity") if all(getattr(scans[s], k) is not None for s in placed)}
         if args.merged_voxel:
             points, normals = sampling.voxel_downsample(points, normals, args.merged_voxel)
-        cloud_io.write_cloud(args.out_merged, points, normals)
+            extras = {}  # one point per voxel: colours and intensity are not averaged
+        cloud_io.write_cloud(args.out_merged, points, normals, **extras)
     if args.plot:
         from rpmnet_jax.cli import plots
         plots.plot_scans(args.plot, {"registered scans": [moved.get(s) for s in range(len(paths))]}, names)

@@ -1,32 +1,42 @@
-"""Reading and writing point clouds and transforms: PLY, PCD, XYZ/TXT/CSV, NPY/NPZ."""
+"""Reading and writing point clouds and transforms: PLY, PCD, XYZ/TXT/CSV, NPY/NPZ, LAS/LAZ, E57.
+
+:func:`read` gives a :class:`~rpmnet_jax.io.columns.Cloud` (points, and normals, colours and intensity where the
+file has them, named by the file or by ``columns``); :func:`write_cloud` writes every field in float64 where the
+format allows, so georeferenced coordinates read back as they were.
+"""
 
 from __future__ import annotations
 
-import io
 import json
 import os
-import warnings
 
 import numpy as np
 
-from rpmnet_jax.io import ply
+from rpmnet_jax.io import columns as cols, e57, las, pcd, ply, text
 
-FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".npz")
-
-
-class CloudError(ValueError):
-    """A point-cloud file could not be used; the message is one line for the user."""
+FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".npz", ".las", ".laz", ".e57")
+Cloud = cols.Cloud
+CloudError = cols.CloudError
 
 
 def check_format(path: str) -> str:
+    """The extension of ``path``; ``CloudError`` when unknown, or when its reader is not installed (LAS, E57)."""
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise CloudError(f"{path}: unknown point-cloud format {ext or '(none)'!r}; use one of {', '.join(FORMATS)}")
+    if ext in (".las", ".laz"):
+        las.check_available(path)
+    elif ext == ".e57":
+        e57.check_available(path)
     return ext
 
 
-def read_cloud(path: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """``points (N, 3)`` float64 and ``normals (N, 3)`` or ``None`` from a file."""
+def read(path: str, columns=None) -> Cloud:
+    """The cloud in ``path``: ``points (N, 3)`` float64 and the normals, colours and intensity it has.
+
+    ``columns`` (``"x,y,z,r,g,b"`` or a list; ``_`` skips a column) names the columns of a text, NPY, PLY or PCD
+    file by position, for files whose own names (or lack of them) do not say.
+    """
     ext = check_format(path)
     if os.path.isdir(path):
         raise CloudError(f"{path}: is a folder, not a point-cloud file")
@@ -34,125 +44,123 @@ def read_cloud(path: str) -> tuple[np.ndarray, np.ndarray | None]:
         raise CloudError(f"{path}: no such file")
     if not os.access(path, os.R_OK):
         raise CloudError(f"{path}: permission denied")
+    if columns is not None:
+        cols.parse(columns)  # unknown names: said before the file is read
+        if ext in (".las", ".laz", ".e57", ".npz"):
+            raise CloudError(f"{path}: --columns applies to text, NPY, PLY and PCD files; {ext[1:].upper()} names "
+                             "its fields")
     try:
         if ext == ".ply":
-            arr = _read_ply(path)
-        elif ext == ".pcd":
-            arr = _read_pcd(path)
-        elif ext in (".npy", ".npz"):
-            arr = _read_numpy(path)
-        else:
-            delimiter = "," if ext == ".csv" else None
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # NumPy warns on an empty file; the shape check below says so
-                arr = np.loadtxt(path, delimiter=delimiter, ndmin=2, comments="#")
+            vertex = ply.read_vertices(path)
+            names = [n for n in vertex.dtype.names or () if vertex.dtype[n].kind in "iuf" and not vertex.dtype[n].shape]
+            return cols.from_fields(path, names, [vertex[n] for n in names], columns)
+        if ext == ".pcd":
+            return pcd.read(path, columns)
+        if ext in (".las", ".laz"):
+            return las.read(path)
+        if ext == ".e57":
+            return e57.read(path)
+        if ext in (".npy", ".npz"):
+            return _read_numpy(path, columns)
+        return text.read(path, columns)
     except CloudError:
         raise
     except Exception as e:  # malformed file of a known format
-        raise CloudError(f"{path}: cannot read as {ext[1:].upper()} ({type(e).__name__}: {e})") from None
-    arr = np.asarray(arr, np.float64)
-    if arr.ndim != 2 or arr.shape[1] not in (3, 6):
-        raise CloudError(f"{path}: expected N×3 (xyz) or N×6 (xyz + normals) values, got shape {arr.shape}")
-    if arr.shape[0] == 0:
-        raise CloudError(f"{path}: the cloud is empty")
-    return arr[:, :3], (arr[:, 3:6] if arr.shape[1] == 6 else None)
+        message = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        raise CloudError(f"{path}: cannot read as {ext[1:].upper()} ({type(e).__name__}: {message})") from None
 
 
-def _read_ply(path):
-    vertex = ply.read_vertices(path)
-    names = vertex.dtype.names or ()
-    if not all(c in names for c in ("x", "y", "z")):
-        raise CloudError(f"{path}: PLY vertices without x y z properties (has {list(names)})")
-    cols = [vertex[c] for c in ("x", "y", "z")]
-    if all(c in names for c in ("nx", "ny", "nz")):
-        cols += [vertex[c] for c in ("nx", "ny", "nz")]
-    return np.stack(cols, axis=1).astype(np.float64)
+def read_cloud(path: str, columns=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """``points (N, 3)`` float64 and ``normals (N, 3)`` or ``None`` from a file (:func:`read` without the rest)."""
+    cloud = read(path, columns)
+    return cloud.points, cloud.normals
 
 
-def _read_pcd(path):
-    with open(path, "rb") as f:
-        header = {}
-        while True:
-            line = f.readline()
-            if not line:
-                raise CloudError(f"{path}: PCD header without a DATA line")
-            parts = line.decode("ascii", "replace").strip().split()
-            if not parts or parts[0].startswith("#"):
-                continue
-            header[parts[0].upper()] = parts[1:]
-            if parts[0].upper() == "DATA":
-                break
-        body = f.read()
-    fields = header["FIELDS"]
-    sizes = [int(s) for s in header.get("SIZE", ["4"] * len(fields))]
-    types = header.get("TYPE", ["F"] * len(fields))
-    counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
-    n = int(header["POINTS"][0]) if "POINTS" in header else int(header["WIDTH"][0]) * int(header["HEIGHT"][0])
-    kind = header["DATA"][0].lower()
-    if kind == "ascii":
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # an empty body: "input contained no data" (the shape check says so)
-            rows = np.loadtxt(io.BytesIO(body), dtype=np.float64, ndmin=2, comments=None)  # NumPy's C parser
-        columns, i = {}, 0
-        for name, c in zip(fields, counts):
-            columns[name] = rows[:, i]
-            i += c
-    elif kind == "binary":
-        dtype = np.dtype([(name, {"F": "f", "I": "i", "U": "u"}[t] + str(s), (c,) if c > 1 else ())
-                          for name, s, t, c in zip(fields, sizes, types, counts)])
-        table = np.frombuffer(body[: n * dtype.itemsize], dtype=dtype, count=n)
-        columns = {name: table[name].astype(np.float64) for name in fields}
-    else:
-        raise CloudError(f"{path}: PCD DATA {kind!r} is not supported (ascii or binary)")
-    if not all(c in columns for c in ("x", "y", "z")):
-        raise CloudError(f"{path}: PCD without x y z fields (has {fields})")
-    cols = [columns[c] for c in ("x", "y", "z")]
-    if all(c in columns for c in ("normal_x", "normal_y", "normal_z")):
-        cols += [columns[c] for c in ("normal_x", "normal_y", "normal_z")]
-    return np.stack(cols, axis=1)
-
-
-def _read_numpy(path):
+def _read_numpy(path, columns):
     if path.lower().endswith(".npy"):
-        return np.load(path, allow_pickle=False)
+        table = np.load(path, allow_pickle=False)
+        if table.dtype.names:  # a structured array: its field names
+            names = [n for n in table.dtype.names if not table.dtype[n].shape]
+            return cols.from_fields(path, names, [table[n] for n in names], columns)
+        return cols.from_array(path, table, columns)
     with np.load(path, allow_pickle=False) as data:
         if "points" in data.files:
-            pts = data["points"]
-            return np.concatenate([pts[:, :3], data["normals"]], 1) if "normals" in data.files else pts
+            pts = np.asarray(data["points"], np.float64)
+            if pts.ndim != 2 or pts.shape[1] < 3:
+                raise CloudError(f"{path}: 'points' must be N×3, got shape {pts.shape}")
+            parts = {k: np.asarray(data[k], np.float64) for k in ("normals", "colours", "intensity") if k in data.files}
+            if len(pts) == 0:
+                raise CloudError(f"{path}: the cloud is empty")
+            return Cloud(pts[:, :3], parts.get("normals"), parts.get("colours"), parts.get("intensity"))
         if len(data.files) == 1:
-            return data[data.files[0]]
-        raise CloudError(f"{path}: NPZ needs a 'points' array (and optionally 'normals'), has {data.files}")
+            return cols.from_array(path, data[data.files[0]])
+        raise CloudError(f"{path}: NPZ needs a 'points' array (and optionally 'normals', 'colours', 'intensity'), "
+                         f"has {data.files}")
 
 
-def write_cloud(path: str, points: np.ndarray, normals: np.ndarray | None = None) -> None:
-    """Writes ``points (N, 3)`` (and ``normals``) in the format of ``path``'s extension, in float64 (text:
-    17 significant digits), so georeferenced coordinates read back as they were."""
+def write_cloud(path: str, points: np.ndarray, normals: np.ndarray | None = None, colours: np.ndarray | None = None,
+                intensity: np.ndarray | None = None) -> None:
+    """Writes ``points (N, 3)`` (and ``normals (N, 3)``, ``colours (N, 3)``, ``intensity (N,)``) in the format of
+    ``path``'s extension (:func:`write`)."""
+    as_array = (lambda a: None if a is None else np.asarray(a, np.float64))
+    write(path, Cloud(as_array(points), as_array(normals), as_array(colours), as_array(intensity)))
+
+
+def write(path: str, cloud: Cloud) -> None:
+    """Writes ``cloud`` row for row (NaN rows stay) in the format of ``path``'s extension: float64 coordinates
+    (text: 17 significant digits; LAS: a scale and offset that lose nothing, :mod:`~rpmnet_jax.io.las`)."""
     ext = check_format(path)
-    points = np.asarray(points, np.float64)
-    normals = None if normals is None else np.asarray(normals, np.float64)
-    arr = points if normals is None else np.concatenate([points, normals], axis=1)
-    names = ["x", "y", "z"] + ([] if normals is None else ["nx", "ny", "nz"])
     if ext == ".ply":
-        from plyfile import PlyData, PlyElement
-        table = np.empty(len(arr), dtype=[(n, "f8") for n in names])
-        for i, n in enumerate(names):
-            table[n] = arr[:, i]
-        PlyData([PlyElement.describe(table, "vertex")]).write(path)
+        _write_ply(path, cloud)
     elif ext == ".pcd":
-        fields = ["x", "y", "z"] + ([] if normals is None else ["normal_x", "normal_y", "normal_z"])
-        k = len(fields)
-        header = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS {' '.join(fields)}\nSIZE {' '.join(['8'] * k)}\n"
-                  f"TYPE {' '.join(['F'] * k)}\nCOUNT {' '.join(['1'] * k)}\nWIDTH {len(arr)}\nHEIGHT 1\n"
-                  f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(arr)}\nDATA binary\n")
-        with open(path, "wb") as f:
-            f.write(header.encode("ascii"))
-            f.write(arr.astype("<f8").tobytes())
+        pcd.write(path, cloud)
+    elif ext in (".las", ".laz"):
+        las.write(path, cloud)
+    elif ext == ".e57":
+        e57.write(path, [cloud])
     elif ext == ".npy":
-        np.save(path, arr)
+        _write_npy(path, cloud)
     elif ext == ".npz":
-        np.savez(path, points=points, **({} if normals is None else {"normals": normals}))
+        np.savez(path, points=cloud.points, **{k: getattr(cloud, k) for k in ("normals", "colours", "intensity")
+                                                if getattr(cloud, k) is not None})
     else:
-        np.savetxt(path, arr, delimiter="," if ext == ".csv" else " ", fmt="%.17g")
+        text.write(path, cloud)
+
+
+def _fields(cloud: Cloud, colour_type: str) -> list:
+    """``[(name, type, (N,) values)]`` of a cloud's fields, with PLY's names."""
+    out = [(n, "f8", cloud.points[:, k]) for k, n in enumerate("xyz")]
+    if cloud.normals is not None:
+        out += [(n, "f8", cloud.normals[:, k]) for k, n in enumerate(("nx", "ny", "nz"))]
+    if cloud.colours is not None:
+        out += [(n, colour_type, cloud.colours[:, k]) for k, n in enumerate(("red", "green", "blue"))]
+    if cloud.intensity is not None:
+        out.append(("intensity", "f8", cloud.intensity))
+    return out
+
+
+def _write_ply(path: str, cloud: Cloud) -> None:
+    from plyfile import PlyData, PlyElement
+
+    fields = _fields(cloud, cols.integer_type(cloud.colours))
+    table = np.empty(len(cloud.points), dtype=[(n, t) for n, t, _ in fields])
+    for name, _, values in fields:
+        table[name] = values
+    PlyData([PlyElement.describe(table, "vertex")]).write(path)
+
+
+def _write_npy(path: str, cloud: Cloud) -> None:
+    """A plain ``(N, 3)`` or ``(N, 6)`` array for points (and normals); a structured array with named fields
+    (``x y z nx ny nz red green blue intensity``) when there are colours or intensity."""
+    if cloud.colours is None and cloud.intensity is None:
+        arrays = [cloud.points] + ([] if cloud.normals is None else [cloud.normals])
+        np.save(path, np.concatenate(arrays, axis=1))
+        return
+    fields = _fields(cloud, "f8")
+    table = np.empty(len(cloud.points), dtype=[(n, t) for n, t, _ in fields])
+    for name, _, values in fields:
+        table[name] = values
+    np.save(path, table)
 
 
 def write_transform(path: str, transform: np.ndarray, **extra) -> None:

@@ -12,9 +12,11 @@ import os
 
 import numpy as np
 
+from rpmnet_jax.io import clouds
+
 
 def read_poses(conf_path: str) -> dict:
-    """``{scan name: (4, 4) pose}`` from a Stanford ``.conf`` file."""
+    """``{scan name: (4, 4) pose}`` from a Stanford ``.conf`` file (names without a point-cloud extension)."""
     from scipy.spatial.transform import Rotation
 
     poses = {}
@@ -26,7 +28,8 @@ def read_poses(conf_path: str) -> dict:
                 pose = np.eye(4)
                 pose[:3, :3] = Rotation.from_quat(q).as_matrix().T
                 pose[:3, 3] = t
-                poses[os.path.splitext(parts[1])[0]] = pose
+                stem, ext = os.path.splitext(parts[1])  # bun000.ply -> bun000; scans.e57#2 stays
+                poses[stem if ext.lower() in clouds.FORMATS else parts[1]] = pose
     if not poses:
         raise ValueError(f"no 'bmesh' lines in {conf_path}")
     return poses
@@ -45,6 +48,6 @@ def write_poses(path: str, names, poses) -> None:
     lines = []
     for name, pose in zip(names, np.asarray(poses, np.float64)):
         q = Rotation.from_matrix(pose[:3, :3].T).as_quat()
-        lines.append(f"bmesh {name} " + " ".join(f"{v:.10g}" for v in (*pose[:3, 3], *q)) + "\n")
+        lines.append(f"bmesh {name} " + " ".join(f"{v:.17g}" for v in (*pose[:3, 3], *q)) + "\n")
     with open(path, "w") as f:
         f.writelines(lines)
