@@ -48,11 +48,15 @@ def require(path, what: str) -> pathlib.Path:
     """``path`` if it exists; else the test skips, or fails when ``CI=true`` (CI must never pass without it)."""
     path = pathlib.Path(path)
     if not path.exists():
-        message = f"{what} not found at {path}"
-        if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
-            pytest.fail(f"{message} (CI=true: the test data must be there)")
-        pytest.skip(message)
+        unavailable(f"{what} not found at {path}", "the test data must be there")
     return path
+
+
+def unavailable(message: str, why: str = "what the test needs must be installed") -> None:
+    """Skips the test, or fails it when ``CI=true`` (CI must never pass without what it needs)."""
+    if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+        pytest.fail(f"{message} (CI=true: {why})")
+    pytest.skip(message)
 
 
 def require_fixtures():

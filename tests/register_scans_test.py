@@ -48,15 +48,21 @@ def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, capsys):
     rc = register_scans.main([str(tmp_path / "a.xyz"), str(tmp_path / "sub" / "a.xyz"), "--out-poses",
                               str(tmp_path / "no" / "p.conf")])
     assert rc == 2 and "does not exist" in capsys.readouterr().err
+    rc = register_scans.main([str(tmp_path / "a.xyz"), str(tmp_path / "sub" / "a.xyz"), "--out-poses", str(out),
+                              "--html", str(tmp_path / "r.png")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--html must name a .html file" in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists() and not (tmp_path / "r.png").exists()
 
 
-def test_cli_writes_poses_merged_cloud_and_plot(tmp_path, capsys):
+def test_cli_writes_poses_merged_cloud_plot_and_page(tmp_path, capsys):
     clouds, poses = synthetic_scans()
     folder = tmp_path / "scans"
     folder.mkdir()
     paths = _write_scans(folder, clouds, ["s0", "s1", "s2"])
     out, merged, plot = tmp_path / "poses.conf", tmp_path / "merged.ply", tmp_path / "scans.png"
-    rc = register_scans.main([str(folder), "--out-poses", str(out), "--out-merged", str(merged), "--plot", str(plot)])
+    rc = register_scans.main([str(folder), "--out-poses", str(out), "--out-merged", str(merged), "--plot", str(plot),
+                              "--html", str(tmp_path / "scans.html")])
     assert rc == 0, capsys.readouterr().err
     got = scan_poses.read_poses(str(out))
     assert list(got) == ["s0", "s1", "s2"] and out.read_text().startswith("bmesh s0.npy 0 0 0 0 0 0 1")
@@ -69,6 +75,8 @@ def test_cli_writes_poses_merged_cloud_and_plot(tmp_path, capsys):
     # 1% of the ~0.2 shape: what 1° of rotation error moves its points by
     assert points.shape == want.shape and np.sqrt(np.mean(np.sum((points - want) ** 2, axis=1))) < 2e-3
     assert plot.stat().st_size > 0 and len(paths) == 3
+    page = (tmp_path / "scans.html").read_text(encoding="utf-8")
+    assert all(f'"name": "s{i}.npy"' in page for i in range(3)) and "<th>scans placed</th><td>3 of 3</td>" in page
 
 
 def test_console_entry_point_starts():
@@ -104,6 +112,7 @@ def test_cli_leaves_out_a_scan_that_overlaps_nothing(tmp_path, capsys):
         assert rotation_error_deg(got[n][:3, :3], truth[:3, :3]) < 1.0
     points, _ = cloud_io.read_cloud(str(merged))
     assert 1000 < len(points) < sum(len(c) for c in clouds) and plot.stat().st_size > 0
+
 
 def test_e57_with_three_scans_registers_as_three_files(tmp_path, capsys):
     """One E57 file holding the three scans, each with a stored pose a few degrees off: the same relative poses as

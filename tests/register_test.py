@@ -32,6 +32,41 @@ def test_plot_without_matplotlib_fails_before_anything_runs(tmp_path, capsys, mo
     assert not out_t.exists() and not png.exists()
 
 
+@pytest.mark.parametrize("page", ["r.png", "no/r.html"])
+def test_html_is_checked_before_anything_runs(tmp_path, capsys, monkeypatch, random_weights, page):
+    """--html names a .html file in a folder that exists, else one line, exit 2, nothing computed or written."""
+    from rpmnet_jax.pairwise import alignment
+
+    monkeypatch.setattr(alignment, "align", lambda *a, **k: pytest.fail("align ran"))
+    src = _write(tmp_path, "src.npy", *synthetic_shape(n=100))
+    out_t, html = tmp_path / "T.txt", tmp_path / page
+    code, out, err = _run_cli([src, src, "--checkpoint", random_weights, "--out-transform", str(out_t), "--html",
+                               str(html)], capsys)
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+    assert err.startswith("rpmnet-register: error:") and ("must name a .html" in err or "does not exist" in err)
+    assert not out_t.exists() and not html.exists()
+
+
+def test_html_page_holds_the_finite_rows_and_the_numbers(tmp_path, capsys, random_weights):
+    import json
+    import re
+
+    pts, nrm = synthetic_shape(n=400)
+    pts[:5] = np.nan
+    src = _write(tmp_path, "src.npy", pts, nrm)
+    ref = _write(tmp_path, "ref.npy", *synthetic_shape(seed=3, n=400))
+    html = tmp_path / "r.html"
+    code, out, err = _run_cli([src, ref, "--checkpoint", random_weights, "--num-points", "128", "--iters", "1",
+                               "--html", str(html)], capsys)
+    assert code == 0, err
+    text = html.read_text(encoding="utf-8")
+    data = json.loads(re.search(r'id="rpmnet-data">(.*?)</script>', text, re.S).group(1))
+    assert [(c["name"], c["drawn"]) for c in data["clouds"]] == [("source", 395), ("reference", 400),
+                                                                  ("aligned source", 395)]
+    fitness = float(re.search(r"<th>fitness</th><td>([^<]+)</td>", text).group(1))
+    assert f"fitness {fitness:.3f}" in out and "src.npy" in text and "ref.npy" in text
+
+
 def _write(tmp_path, name, pts, nrm=None):
     path = str(tmp_path / name)
     cloud_io.write_cloud(path, pts, nrm)
@@ -188,6 +223,7 @@ def test_console_entry_points_start(module):
                          capture_output=True, text=True, env=dict(os.environ, RPMNET_COMPILATION_CACHE="off"))
     assert out.returncode == 0, out.stderr[-2000:]
     assert "usage:" in out.stdout
+
 
 def _registered(tmp_path, capsys, random_weights, src, ref, out_a, *extra):
     """Runs the CLI quickly (128 points, one iteration, local start); returns the transform it wrote."""

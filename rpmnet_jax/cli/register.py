@@ -26,6 +26,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out-candidates", default=None,
                    help="write the distinct answers, best first, with their scores and the information matrix (.json)")
     p.add_argument("--plot", default=None, help="PNG with source, reference and aligned source in 3-D")
+    p.add_argument("--html", default=None, help="self-contained page: the clouds in 3-D (turn, zoom; before / "
+                   "after) beside the numbers; opens offline")
     p.add_argument("--num-points", type=int, default=1024, help="points per cloud fed to the model (default 1024)")
     p.add_argument("--iters", type=int, default=5, help="registration iterations (default 5)")
     p.add_argument("--sampling", choices=("random", "fps"), default="random", help="downsampling method")
@@ -60,12 +62,15 @@ def main(argv=None) -> int:
     from rpmnet_jax.io import clouds as cloud_io
     from rpmnet_jax.ops import se3
     from rpmnet_jax.pairwise import alignment as align_lib
+    from rpmnet_jax.report import pages
     from rpmnet_jax.weights import loading
 
     try:
         if args.plot:
             plots.check_available()
-        runtime.check_outputs(args.out_transform, args.out_aligned, args.plot, args.out_candidates)
+        if args.html:
+            pages.check_path(args.html)
+        runtime.check_outputs(args.out_transform, args.out_aligned, args.plot, args.out_candidates, args.html)
         if args.out_candidates and not args.out_candidates.lower().endswith(".json"):
             raise ValueError(f"--out-candidates must name a .json file, got {args.out_candidates}")
         if args.out_aligned:
@@ -123,7 +128,29 @@ def main(argv=None) -> int:
         cloud_io.write_cloud(args.out_aligned, result.aligned, aligned_n, source.colours, source.intensity)
     if args.plot:
         plots.plot_alignment(args.plot, src, ref, result.aligned)
+    if args.html:
+        pages.pair_report(args.html, src, ref, result.aligned, _report_numbers(args, result, seconds))
     return 0
+
+
+def _report_numbers(args, result, seconds: float) -> dict:
+    """What the ``--html`` page shows beside the clouds."""
+    import os
+
+    from rpmnet_jax.ops import se3
+
+    best = result.candidates[0] if result.candidates else None
+    candidates = [{"start": c.init, "deg from best": float(se3.rotation_angle_deg(c.transform[:3, :3] @
+                                                                                  best.transform[:3, :3].T)),
+                   "score / best": c.score / best.score if best.score else float("nan"), "fitness": c.fitness,
+                   "inlier RMSE": c.inlier_rmse} for c in result.candidates]
+    return {"source": os.path.basename(args.src), "reference": os.path.basename(args.ref),
+            "transform (source onto reference)": result.transform, "fitness": result.fitness,
+            "inlier RMSE": result.inlier_rmse, "correspondence distance": result.max_correspondence_distance,
+            "start": result.init, "ICP iterations": f"{result.num_iterations}"
+                                                    f"{'' if result.converged else ' (not converged)'}",
+            "confidence": result.confidence, "points used": f"{result.num_points[0]} / {result.num_points[1]}",
+            "time (s)": round(seconds, 2), "ambiguous": result.ambiguous, "candidates": candidates}
 
 
 def entry() -> None:

@@ -39,6 +39,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="what the columns of every scan file are, by position, e.g. x,y,z,r,g,b (names: x y z nx ny "
                         "nz r g b or red green blue, intensity, _ to skip); default: the files' own names")
     p.add_argument("--plot", default=None, help="PNG of the merged scans, one colour per scan")
+    p.add_argument("--html", default=None, help="self-contained page: the placed scans in 3-D, one colour per scan "
+                   "(turn, zoom), beside the poses and edges; opens offline")
     p.add_argument("--checkpoint", default=None,
                    help="orbax training dir, .npz or official .pth (default: the shipped model)")
     p.add_argument("--voxel-size", type=float, default=None,
@@ -118,7 +120,10 @@ def main(argv=None) -> int:
         if args.plot:
             from rpmnet_jax.cli import plots
             plots.check_available()
-        runtime.check_outputs(args.out_poses, args.out_merged, args.plot)
+        if args.html:
+            from rpmnet_jax.report import pages
+            pages.check_path(args.html)
+        runtime.check_outputs(args.out_poses, args.out_merged, args.plot, args.html)
         if args.out_merged:
             cloud_io.check_format(args.out_merged)
         if args.merged_voxel is not None and not args.merged_voxel > 0:
@@ -182,7 +187,34 @@ def main(argv=None) -> int:
     if args.plot:
         from rpmnet_jax.cli import plots
         plots.plot_scans(args.plot, {"registered scans": [moved.get(s) for s in range(len(paths))]}, names)
+    if args.html:
+        from rpmnet_jax.report import pages
+        pages.scans_report(args.html, [moved.get(s) for s in range(len(paths))], names,
+                           _report_numbers(result, names, clouds, clock.elapsed()))
     return 0
+
+
+def _report_numbers(result, names, clouds, seconds: float) -> dict:
+    """What the ``--html`` page shows beside the scans."""
+    import numpy as np
+
+    from rpmnet_jax.ops import se3
+
+    placed = [s for s in range(len(names)) if s not in result.left_out]
+
+    def edges(found):
+        return [{"source": names[e.source], "target": names[e.target], "stage": e.stage, "fitness": e.fitness,
+                 "inlier RMSE": e.inlier_rmse} for e in found]
+    scans = [{"scan": names[s], "points": len(clouds[s][0]),
+              "rotation (deg)": float(se3.rotation_angle_deg(result.poses[s, :3, :3])),
+              "translation": float(np.linalg.norm(result.poses[s, :3, 3])),
+              "edges": sum(s in (e.source, e.target) for e in result.edges)} for s in placed]
+    return {"scans placed": f"{len(placed)} of {len(names)}",
+            "left out (overlap none of the placed)": ", ".join(names[s] for s in result.left_out) or "none",
+            "edges": len(result.edges), "rejected edges": len(result.rejected), "voxel": result.voxel_size,
+            "correspondence distance": result.max_correspondence_distance, "time (s)": round(seconds, 2),
+            "scans": scans, "poses (scan onto the first scan's frame)": {names[s]: result.poses[s] for s in placed},
+            "pose-graph edges": edges(result.edges) or "none", "rejected": edges(result.rejected) or "none"}
 
 
 def entry() -> None:
