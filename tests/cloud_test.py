@@ -73,3 +73,14 @@ def test_radius_about_a_given_centre():
     pts = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 3.0, 0]])
     assert cloud.radius(pts) == pytest.approx(2.0)  # about the centroid (0, 1, 0): the third point
     assert cloud.radius(pts, np.zeros(3)) == 3.0
+
+
+def test_huge_finite_values_are_kept_when_their_sum_overflows():
+    """The one-pass finiteness test (a finite total) falls back to the per-row test when the total overflows: no
+    finite row is dropped for it."""
+    pts = np.random.default_rng(0).uniform(-1, 1, (50, 3)) * 1e307
+    pts[:, 0] += 1.7e308  # every x near the float64 limit: their sum is inf
+    assert not np.isfinite(np.sum(pts))
+    got, _, rows = cloud.clean_cloud("c", pts, None)
+    np.testing.assert_array_equal(rows, np.arange(50))
+    np.testing.assert_array_equal(got, pts)

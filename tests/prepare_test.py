@@ -2,6 +2,7 @@
 both clouds."""
 
 import numpy as np
+import pytest
 
 from rpmnet_jax.data import synthetic
 from rpmnet_jax.pairwise import prepare
@@ -53,3 +54,24 @@ def test_estimated_normals_face_the_same_way_in_both_clouds():
         assert np.mean(np.sum(n_est * toward_origin, axis=1) > 0) > 0.99
         outward = xyz_u - xyz_u.mean(0)
         assert np.mean(np.sum(n_est * outward, axis=1) > 0) < 0.05
+
+
+def test_a_cloud_above_max_points_is_registered_on_a_subset_of_its_rows(monkeypatch):
+    """Above ``MAX_POINTS`` rows only a seeded subset is kept (rows into the caller's arrays, in order, NaN rows never
+    picked), and ``align`` still moves every row of the caller's source."""
+    from rpmnet_jax.pairwise import alignment
+
+    monkeypatch.setattr(prepare, "MAX_POINTS", 500)
+    pts, nrm = _shape(seed=3, n=2000)
+    pts[7] = np.nan
+    with pytest.warns(UserWarning, match="dropped 1 points"):
+        pair = prepare.prepare_pair(pts, pts, nrm, nrm, num_points=256)
+    assert len(pair.src) == len(pair.ref) == 500
+    assert np.all(np.diff(pair.src_rows) > 0) and 7 not in pair.src_rows
+    np.testing.assert_array_equal(pair.src, pts[pair.src_rows])
+    assert not np.array_equal(pair.src_rows, pair.ref_rows)  # each cloud its own subset
+    with pytest.warns(UserWarning, match="dropped 1 points"):
+        a = alignment.align(pts, pts, nrm, nrm, init="classical", num_points=256)
+    assert a.aligned.shape == pts.shape and np.isnan(a.aligned[7]).all()
+    np.testing.assert_allclose(a.transform, np.eye(4), atol=1e-4)  # two subsets of one cloud: the identity
+    assert set(a.correspondences[:, 0]) <= set(prepare.prepare_pair(pts, pts, nrm, nrm, num_points=256).src_rows)

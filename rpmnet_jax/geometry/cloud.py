@@ -13,26 +13,38 @@ STRAY_FACTOR = 3.0
 MIN_POINTS = 3  # fewer cannot fix a rigid transform
 
 
-def clean_cloud(name: str, points, normals):
+def clean_cloud(name: str, points, normals, max_points: int | None = None, seed: int = 0):
     """``(points (n, 3), normals (n, 3) or None, rows (n,))``: float64 points without NaN/inf rows (warned),
     unit normals, and the indices of the kept rows in the caller's ``points (N, 3)``; raises ``ValueError``
-    naming ``name`` for a wrong shape, fewer than ``MIN_POINTS`` points, a degenerate cloud or zero normals."""
-    points = np.asarray(points, np.float64)
+    naming ``name`` for a wrong shape, fewer than ``MIN_POINTS`` points, a degenerate cloud or zero normals.
+
+    ``max_points``: a cloud with more finite rows keeps a random (``seed``) subset of this many, in row order:
+    only those are copied, so a dense cloud costs what the subset costs."""
+    points = np.asarray(points)
+    if not np.issubdtype(points.dtype, np.floating):
+        points = points.astype(np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"{name}: expected points of shape (N, 3), got {points.shape}")
     if normals is not None:
-        normals = np.asarray(normals, np.float64)
+        normals = np.asarray(normals)
         if normals.shape != points.shape:
             raise ValueError(f"{name}: normals {normals.shape} do not match points {points.shape}")
-    finite = np.all(np.isfinite(points), axis=1)
-    if normals is not None:
-        finite &= np.all(np.isfinite(normals), axis=1)
-    rows = np.flatnonzero(finite)
-    if not np.all(finite):
-        dropped = int(np.sum(~finite))
-        warnings.warn(f"{name}: dropped {dropped} points with NaN/inf values", stacklevel=3)
-        points = points[finite]
-        normals = None if normals is None else normals[finite]
+    if np.isfinite(np.sum(points)) and (normals is None or np.isfinite(np.sum(normals))):
+        rows = np.arange(len(points))  # a finite total has no NaN/inf term (one pass, not a per-row test)
+    else:
+        finite = np.all(np.isfinite(points), axis=1)
+        if normals is not None:
+            finite &= np.all(np.isfinite(normals), axis=1)
+        rows = np.flatnonzero(finite)
+    if len(rows) < len(points):
+        warnings.warn(f"{name}: dropped {len(points) - len(rows)} points with NaN/inf values", stacklevel=3)
+    if max_points is not None and len(rows) > max_points:
+        rows = np.sort(np.random.default_rng(seed).choice(rows, max_points, replace=False))
+    if len(rows) < len(points):
+        points = points[rows]
+        normals = None if normals is None else normals[rows]
+    points = np.asarray(points, np.float64)
+    normals = None if normals is None else np.asarray(normals, np.float64)
     if len(points) < MIN_POINTS:
         raise ValueError(f"{name}: {len(points)} usable points; at least {MIN_POINTS} are needed")
     sv = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)

@@ -27,6 +27,10 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    ``AMBIGUITY_SHARE`` of the best's score: the shape fits itself in more than one pose (a vase turned about
    its axis, a box flipped), and the answer may be any of them.
 
+A cloud of more than ``prepare.MAX_POINTS`` (200,000) finite rows is registered and scored on a seeded random
+subset of that many (what Open3D's recipe gets from voxel downsampling first): ``fitness``, ``inlier_rmse`` and
+``correspondences`` are then over the subset's rows; ``aligned`` still has every row of the caller's source.
+
 ``max_correspondence_distance`` (caller's units) is the inlier threshold of the score and the finest ICP
 gate; by default 5% of the clouds' common radius (the largest distance of a non-stray point from its cloud's
 centre, :func:`rpmnet_jax.geometry.cloud.robust_centre`):
