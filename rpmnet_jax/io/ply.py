@@ -3,17 +3,21 @@
 A PLY file is a header (elements, each with typed properties) and then the elements' rows in order. Range scans
 put their vertices first and a large second element after them (the Stanford scans: a 204,800-row
 ``range_grid`` of lists); only the vertices are needed. When the vertex element comes first and has no list
-properties, its rows are parsed by NumPy's C readers (``loadtxt`` with ``max_rows`` for ASCII, ``frombuffer``
-for binary) and the rest of the file is never read: 0.04 s for the 40,097 vertices of ``bun045.ply`` where
-parsing the whole file with ``plyfile`` took 2.5–4.9 s. Any other layout goes through ``plyfile``.
+properties, its rows are parsed by one compiled loop (ASCII, :mod:`rpmnet_jax.io.ascii_table`) or NumPy's
+``frombuffer`` (binary), and the rest of the file is never parsed: a few ms for the 40,097 vertices of
+``bun045.ply`` where parsing the whole file with ``plyfile`` took 2.5–4.9 s. Any other layout goes through
+``plyfile``.
 """
 
 from __future__ import annotations
 
+import io
 import warnings
 from typing import NamedTuple
 
 import numpy as np
+
+from rpmnet_jax.io import ascii_table
 
 TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2", "ushort": "u2",
          "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4",
@@ -83,11 +87,17 @@ def read_vertices(path: str) -> np.ndarray:
 
 def _ascii_rows(f, vertex: Element, dtype: np.dtype) -> np.ndarray:
     """``vertex.count`` rows of the ASCII body of ``f`` as a structured array of ``dtype``: parsed in float64 (what
-    every PLY type converts to exactly) by NumPy's C reader, then cast to the declared types."""
+    every PLY type converts to exactly) by :mod:`rpmnet_jax.io.ascii_table` (NumPy's ``loadtxt`` where its exact
+    fast path does not apply), then cast to the declared types."""
     k = len(vertex.properties)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # an empty vertex table: "input contained no data"
-        rows = np.loadtxt(f, dtype=np.float64, max_rows=vertex.count, ndmin=2, comments=None)
+    body = f.read()
+    parsed = ascii_table.parse_rows(body, 0, vertex.count, k)
+    if parsed is not None:
+        rows = parsed[0]
+    else:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty vertex table: "input contained no data"
+            rows = np.loadtxt(io.BytesIO(body), dtype=np.float64, max_rows=vertex.count, ndmin=2, comments=None)
     if vertex.count and (rows.shape[0] != vertex.count or rows.shape[1] != k):
         raise ValueError(f"the header declares {vertex.count} vertices of {k} values; the body has "
                          f"{rows.shape[0]} rows of {rows.shape[1]}")
