@@ -2,10 +2,10 @@
 answers are more than ``AMBIGUITY_DEG`` apart, ambiguity is a second answer close to the best's score."""
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from conftest import rotation_about
 from rpmnet_jax.data import synthetic
+from rpmnet_jax.geometry import kdtree
 from rpmnet_jax.pairwise import candidates, prepare
 
 
@@ -27,7 +27,7 @@ def test_the_selection_score_prefers_the_right_answer_over_a_flip():
     src = src[d > np.quantile(d, 0.3)]
     src = src[rng.choice(len(src), 256, replace=False)] + rng.normal(scale=0.01, size=(256, 3))
     ref = _tapered_box(rng, 4000) + rng.normal(scale=0.01, size=(4000, 3))
-    dense = prepare.DenseClouds(src, ref, np.zeros_like(ref), cKDTree(ref), np.zeros_like(src))  # normals unused
+    dense = prepare.DenseClouds(src, ref, np.zeros_like(ref), kdtree.KdTree(ref), np.zeros_like(src))  # normals unused
     flip = np.eye(4)
     flip[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)
     right = candidates.selection_score(dense, np.eye(4), 0.05)

@@ -91,11 +91,11 @@ def test_tukey_weights():
 def test_gates_follow_the_clouds_within_their_bounds():
     """3 median nearest-neighbour distances: a coarse gate from the finest gate up to its scale; a fine gate
     narrower than its scale only for clouds much denser and cleaner than the correspondence distance."""
-    from scipy.spatial import cKDTree
+    from rpmnet_jax.geometry import kdtree
 
     rng = np.random.default_rng(0)
     pts, _ = asymmetric_shape(4, 8000)
-    tree = cKDTree(pts[1::2])
+    tree = kdtree.KdTree(pts[1::2])
     dense = pts[::2]  # 3 median nearest-neighbour distances: 0.037
     noisy = dense + rng.normal(scale=0.05, size=dense.shape)  # about 0.12
     assert icp._pairs(tree, dense, 0.2, 1.0, 3)[2] == pytest.approx(0.05)  # the floor: a quarter

@@ -16,7 +16,8 @@ import math
 
 import numba
 import numpy as np
-from scipy.spatial import cKDTree
+
+from rpmnet_jax.geometry import kdtree
 
 BINS = 11
 
@@ -77,15 +78,15 @@ def pair_features(p1, n1, p2, n2):
     return _rows_features(*flat).reshape(shape + (4,))
 
 
-def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: cKDTree | None = None):
+def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: kdtree.KdTree | None = None):
     """Hybrid search (Open3D's ``KDTreeSearchParamHybrid``): the ``max_nn`` nearest points within ``radius``
     of each point, itself included first. Returns ``(idx (N, max_nn), dist² (N, max_nn), valid (N, max_nn))``;
     invalid slots point at the point itself."""
     if max_nn < 1:
         raise ValueError(f"max_nn must be >= 1, got {max_nn}")
-    tree = tree or cKDTree(points)
+    tree = tree or kdtree.KdTree(points)
     k = min(max_nn, len(points))
-    dist, idx = tree.query(points, k=k, distance_upper_bound=radius, workers=-1)
+    dist, idx = tree.query(points, k=k, distance_upper_bound=radius)
     dist, idx = dist.reshape(len(points), k), idx.reshape(len(points), k)  # k=1 returns (N,): keep (N, 1)
     valid = np.isfinite(dist)
     own = np.arange(len(points))[:, None]
@@ -141,7 +142,7 @@ def _fpfh_from_spfh(hist, idx, d2, valid):
     return out
 
 
-def fpfh(points, normals, radius: float, max_nn: int = 100, tree: cKDTree | None = None) -> np.ndarray:
+def fpfh(points, normals, radius: float, max_nn: int = 100, tree: kdtree.KdTree | None = None) -> np.ndarray:
     """FPFH ``(N, 33)`` of ``points, normals (N, 3)`` with Open3D's hybrid search (``radius``, ``max_nn``)."""
     points = np.ascontiguousarray(points, np.float64)
     normals = np.ascontiguousarray(normals, np.float64)

@@ -32,10 +32,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from rpmnet_jax.ops import se3
-from rpmnet_jax.geometry import cloud, scoring
+from rpmnet_jax.geometry import cloud, kdtree
 
 
 class Refinement(NamedTuple):
@@ -67,7 +66,7 @@ GATE_MEDIANS = 3.0  # every gate: this many median nearest-neighbour distances, 
 FINE_FLOOR = 0.25  # a fine stage's gate goes down to this share of its scale (dense, clean range scans)
 
 
-def _pairs(tree: cKDTree, moved: np.ndarray, max_distance: float, scale: float, neighbours: int
+def _pairs(tree: kdtree.KdTree, moved: np.ndarray, max_distance: float, scale: float, neighbours: int
            ) -> tuple[np.ndarray, np.ndarray, float]:
     """``(source rows (P,), reference rows (P,), gate)``: the ``neighbours`` nearest reference points within
     the gate of each moved source point. The gate is ``GATE_MEDIANS`` median nearest-neighbour distances,
@@ -79,8 +78,7 @@ def _pairs(tree: cKDTree, moved: np.ndarray, max_distance: float, scale: float, 
     nothing of the noise."""
     ceiling = scale * max_distance
     floor = max_distance if scale > 1.0 else FINE_FLOOR * ceiling
-    dist, idx = tree.query(moved, k=neighbours, distance_upper_bound=ceiling,
-                           workers=scoring.query_workers(len(moved)))
+    dist, idx = tree.query(moved, k=neighbours, distance_upper_bound=ceiling)
     dist, idx = dist.reshape(len(moved), -1), idx.reshape(len(moved), -1)
     nearest = dist[:, 0] if scale > 1.0 else dist[np.isfinite(dist[:, 0]), 0]  # fine: the overlap's own
     gate = float(np.clip(GATE_MEDIANS * np.median(nearest), floor, ceiling)) if len(nearest) else ceiling
@@ -96,7 +94,7 @@ def tukey_weights(residuals: np.ndarray, scale: float) -> np.ndarray:
 
 def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_normals=None,
                        scales=PAIR.scales, max_iterations: int = PAIR.max_iterations, tolerance: float = 1e-4,
-                       neighbours: int = 3, ref_tree: cKDTree | None = None) -> Refinement:
+                       neighbours: int = 3, ref_tree: kdtree.KdTree | None = None) -> Refinement:
     """Refines ``init (4, 4)`` moving ``src (N, 3)`` onto ``ref (M, 3)`` with unit ``ref_normals (M, 3)``.
 
     ``src_normals (N, 3)``: unit normals of the source (either sign), for the symmetric planes of the fine
@@ -117,7 +115,7 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
         raise ValueError(f"neighbours must be >= 1, got {neighbours}")
     if src_n is not None and src_n.shape != src.shape:
         raise ValueError(f"src_normals {src_n.shape} do not match src {src.shape}")
-    tree = ref_tree if ref_tree is not None else cKDTree(ref)
+    tree = ref_tree if ref_tree is not None else kdtree.KdTree(ref)
     radius = max(cloud.radius(src), 1e-12)
     transform = np.array(init, np.float64)
     total, converged = 0, True

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
-from scipy.spatial import cKDTree
+
+from rpmnet_jax.geometry import kdtree
 
 
 def estimate_normals(points: np.ndarray, k: int = 16, viewpoint: np.ndarray | None = None,
@@ -25,7 +26,7 @@ def estimate_normals(points: np.ndarray, k: int = 16, viewpoint: np.ndarray | No
     points = np.asarray(points, np.float64)
     n = len(points)
     k = max(3, min(k, n))
-    _, idx = cKDTree(points).query(points, k=k, workers=-1)
+    _, idx = kdtree.KdTree(points).query(points, k=k)
     normals = _pca_normals(points, idx)
     if not orient:
         return normals
@@ -38,12 +39,12 @@ def estimate_normals(points: np.ndarray, k: int = 16, viewpoint: np.ndarray | No
     return normals
 
 
-def normals_at(points: np.ndarray, rows: np.ndarray, k: int = 16, tree: cKDTree | None = None) -> np.ndarray:
+def normals_at(points: np.ndarray, rows: np.ndarray, k: int = 16, tree: kdtree.KdTree | None = None) -> np.ndarray:
     """Unoriented unit normals ``(R, 3)`` of ``points[rows]`` from their ``k`` nearest neighbours among all
     ``points (N, 3)`` (as :func:`estimate_normals` with ``orient=False``, for a few rows of a large cloud)."""
     points = np.asarray(points, np.float64)
-    tree = tree if tree is not None else cKDTree(points)
-    _, idx = tree.query(points[np.asarray(rows, np.int64)], k=max(3, min(k, len(points))), workers=-1)
+    tree = tree if tree is not None else kdtree.KdTree(points)
+    _, idx = tree.query(points[np.asarray(rows, np.int64)], k=max(3, min(k, len(points))))
     return _pca_normals(points, idx)
 
 

@@ -6,18 +6,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
-
+from rpmnet_jax.geometry import kdtree
 from rpmnet_jax.ops import se3
-
-PARALLEL_ROWS = 4096  # k-d tree queries of fewer points run on one core: SciPy starts threads per call, which
-# cost more than the second core gives on the 1,024-point pairs' ICP (align_time: 0.30 s one core, 0.36 s two)
-
-
-def query_workers(rows: int) -> int:
-    """SciPy's ``workers`` for a k-d tree query of ``rows`` points: all cores for large queries only."""
-    return -1 if rows >= PARALLEL_ROWS else 1
-
 
 class Score(NamedTuple):
     fitness: float  # fraction of source points with a reference point within max_distance
@@ -33,7 +23,7 @@ def _as_points(name: str, x) -> np.ndarray:
     return x[:, :3]
 
 
-def evaluate_registration(src, ref, transform, max_distance: float, ref_tree: cKDTree | None = None) -> Score:
+def evaluate_registration(src, ref, transform, max_distance: float, ref_tree: kdtree.KdTree | None = None) -> Score:
     """Fitness, inlier RMSE and correspondences of ``transform`` moving ``src (N, 3)`` onto ``ref (M, 3)``.
 
     ``transform``: ``(4, 4)`` or ``(3, 4)``; a source point is an inlier when its nearest reference point is
@@ -46,8 +36,8 @@ def evaluate_registration(src, ref, transform, max_distance: float, ref_tree: cK
     if not max_distance > 0:
         raise ValueError(f"max_distance must be > 0, got {max_distance}")
     moved = se3.apply(t, src)
-    tree = ref_tree if ref_tree is not None else cKDTree(ref)
-    dist, idx = tree.query(moved, k=1, distance_upper_bound=max_distance, workers=query_workers(len(moved)))
+    tree = ref_tree if ref_tree is not None else kdtree.KdTree(ref)
+    dist, idx = tree.query(moved, k=1, distance_upper_bound=max_distance)
     inlier = np.isfinite(dist) & (dist <= max_distance)
     n = int(inlier.sum())
     rmse = float(np.sqrt(np.mean(dist[inlier] ** 2))) if n else 0.0

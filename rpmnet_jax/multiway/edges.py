@@ -10,11 +10,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from rpmnet_jax import registration
 from rpmnet_jax.ops import se3
-from rpmnet_jax.geometry import icp, sampling, scoring
+from rpmnet_jax.geometry import icp, kdtree, sampling, scoring
 from rpmnet_jax.pairwise import prepare
 
 
@@ -23,7 +22,7 @@ class Scan(NamedTuple):
 
     points: np.ndarray  # (V, 3) caller's units
     normals: np.ndarray  # (V, 3)
-    tree: cKDTree
+    tree: kdtree.KdTree
 
 
 class Edge(NamedTuple):
@@ -40,7 +39,7 @@ class Edge(NamedTuple):
 def make_scan(points: np.ndarray, normals: np.ndarray) -> Scan:
     """A :class:`Scan` of ``points, normals (V, 3)``."""
     points = np.asarray(points, np.float64)
-    return Scan(points, np.asarray(normals, np.float64), cKDTree(points))
+    return Scan(points, np.asarray(normals, np.float64), kdtree.KdTree(points))
 
 
 def measure(scans, i: int, j: int, transform: np.ndarray, max_distance: float, stage: str,

@@ -16,9 +16,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from rpmnet_jax.geometry import cloud, icp as icp_lib, normals as normals_lib, sampling as sampling_lib
+from rpmnet_jax.geometry import cloud, icp as icp_lib, kdtree, normals as normals_lib, sampling as sampling_lib
 from rpmnet_jax.ops import se3
 
 
@@ -111,7 +110,7 @@ class RowNormals:
     from the ``k`` nearest neighbours in ``tree``, a k-d tree of ``points``, made here when not given) the first
     time a row is asked for, and kept: the dense samples and the final information matrix share them."""
 
-    def __init__(self, points: np.ndarray, given: np.ndarray | None, tree: cKDTree | None = None):
+    def __init__(self, points: np.ndarray, given: np.ndarray | None, tree: kdtree.KdTree | None = None):
         self.points, self.given, self.tree = points, given, tree
         self._normals = np.zeros_like(points) if given is None else None
         self._known = np.zeros(len(points), bool)
@@ -122,7 +121,7 @@ class RowNormals:
             return self.given[rows]
         missing = np.unique(rows[~self._known[rows]])
         if len(missing):
-            self.tree = self.tree if self.tree is not None else cKDTree(self.points)
+            self.tree = self.tree if self.tree is not None else kdtree.KdTree(self.points)
             self._normals[missing] = normals_lib.normals_at(self.points, missing, tree=self.tree)
             self._known[missing] = True
         return self._normals[rows]
@@ -134,7 +133,7 @@ class DenseClouds(NamedTuple):
     src: np.ndarray  # (n, 3)
     ref: np.ndarray  # (m, 3)
     ref_normals: np.ndarray  # (m, 3)
-    ref_tree: cKDTree
+    ref_tree: kdtree.KdTree
     src_normals: np.ndarray  # (n, 3): for the ICP's symmetric planes (lines only: signs need not agree)
 
 
@@ -156,7 +155,7 @@ def dense_clouds(pair: PreparedPair, refine_points: int, seed: int, ref_normals:
     ref = pair.to_unit(pair.ref[i_ref], "ref")
     src_normals = (pair.src_normals[i_src] if pair.src_normals is not None
                    else normals_lib.normals_at(pair.src, i_src))
-    return DenseClouds(src, ref, ref_normals(i_ref), cKDTree(ref), src_normals)
+    return DenseClouds(src, ref, ref_normals(i_ref), kdtree.KdTree(ref), src_normals)
 
 
 class Inputs(NamedTuple):
@@ -164,7 +163,7 @@ class Inputs(NamedTuple):
 
     pair: PreparedPair
     dense: DenseClouds | None  # None when nothing is refined or scored on dense samples
-    ref_tree: cKDTree  # of the full reference (caller's units): its normals, the final score
+    ref_tree: kdtree.KdTree  # of the full reference (caller's units): its normals, the final score
     ref_normals: RowNormals  # of the full reference, shared by the dense samples and the information matrix
     max_distance: float  # the correspondence distance, caller's units
     max_distance_unit: float  # the same in the normalised frame
@@ -186,7 +185,7 @@ def for_alignment(src_points, ref_points, src_normals, ref_normals, *, num_point
                                  "(refine='none' takes 3)")
     max_dist = (max_correspondence_distance if max_correspondence_distance is not None
                 else relative_distance * pair.scale)
-    ref_tree = cKDTree(pair.ref)
+    ref_tree = kdtree.KdTree(pair.ref)
     ref_normals_at = RowNormals(pair.ref, pair.ref_normals, ref_tree)
     dense_samples = dense_clouds(pair, dense_points, seed, ref_normals_at) if dense_points is not None else None
     return Inputs(pair, dense_samples, ref_tree, ref_normals_at, float(max_dist), float(max_dist) / pair.scale)
