@@ -45,16 +45,29 @@ def test_nearest_rows_equal_a_kd_tree():
                                   cKDTree(rows).query(queries)[1])
 
 
-def test_moved_distances_equal_the_direct_form():
-    """The ``(M, 15) @ (15, C)`` expansion against ``|R s + t - r|²`` on unit-sphere points."""
-    from scipy.spatial.transform import Rotation
-
+def test_scored_samples_equal_kabsch_and_direct_distances():
+    """The compiled solve (Horn's quaternion) and inlier count against an oracle: Kabsch by SVD, distances moved
+    point by point; a sample whose own points miss the distance scores -1."""
     rng = np.random.default_rng(5)
-    rot = Rotation.random(40, random_state=5).as_matrix()
-    t = np.concatenate([rot, rng.uniform(-0.5, 0.5, (40, 3, 1))], axis=2).astype(np.float32)
-    s, r = (rng.uniform(-1, 1, (128, 3)).astype(np.float32) for _ in range(2))
-    direct = np.sum((np.einsum("mij,cj->mci", rot, s) + t[:, None, :, 3] - r) ** 2, axis=-1)
-    np.testing.assert_allclose(np.asarray(feature_ransac._moved_sq_distances(t, s, r)), direct, atol=2e-5)
+    src_c = rng.uniform(-1, 1, (128, 3))
+    rot = rotation_about([0.2, 1.0, -0.4], 130.0)
+    ref_c = src_c @ rot.T + [0.1, -0.3, 0.2] + rng.normal(0, 0.02, (128, 3))
+    ref_c[:40] = rng.uniform(-1, 1, (40, 3))  # wrong matches
+    samples = rng.integers(0, 128, (300, 3))
+    samples = samples[(samples[:, 0] != samples[:, 1]) & (samples[:, 1] != samples[:, 2])
+                      & (samples[:, 0] != samples[:, 2])]
+    t, counts = feature_ransac._score_samples(src_c, ref_c, samples, 0.075)
+    for k, sample in enumerate(samples):
+        a, b = src_c[sample], ref_c[sample]
+        u, _, vh = np.linalg.svd((a - a.mean(0)).T @ (b - b.mean(0)))
+        d = np.sign(np.linalg.det(vh.T @ u.T))
+        r = vh.T @ np.diag([1.0, 1.0, d]) @ u.T
+        np.testing.assert_allclose(t[k, :, :3], r, atol=1e-9)
+        np.testing.assert_allclose(t[k, :, 3], b.mean(0) - r @ a.mean(0), atol=1e-9)
+        dist = np.linalg.norm(src_c @ r.T + t[k, :, 3] - ref_c, axis=1)
+        expected = np.sum(dist <= 0.075) if np.all(dist[sample] <= 0.075) else -1
+        assert counts[k] == expected
+    assert (counts == -1).any() and (counts > 60).any()
 
 
 def test_samples_the_edge_checker_rejects_are_never_solved(monkeypatch):

@@ -1,7 +1,7 @@
-"""Classical global hypotheses: FPFH correspondences and RANSAC over 3-point samples, verified in one batched,
-NumPy call per block of samples (Open3D's ``registration_ransac_based_on_feature_matching``, with its mutual
-filter, edge-length and distance checkers, made batch-parallel instead of sequential). NumPy, not JIT: the
-classical path then needs no JAX (no import, no compile: a one-shot CLI run skips both).
+"""Classical global hypotheses: FPFH correspondences and RANSAC over 3-point samples, every sample solved and
+verified in one compiled loop (Open3D's ``registration_ransac_based_on_feature_matching``, with its mutual
+filter, edge-length and distance checkers). Numba, not JAX: the classical path needs no JAX (no import, no
+XLA compile: a one-shot CLI run skips both).
 
 Rotation-invariant features make these hypotheses independent of the starting orientation, which the
 network (trained on rotations of up to 45° per axis) is not; :func:`rpmnet_jax.align` refines them
@@ -12,6 +12,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import math
+
+import numba
 import numpy as np
 
 from rpmnet_jax.ops import se3
@@ -49,37 +52,106 @@ def mutual_correspondences(src_features: np.ndarray, ref_features: np.ndarray) -
 MIN_INLIERS = 3  # a hypothesis must bring at least its own sample's correspondences within the distance
 
 
-def _moved_sq_distances(t, src_c, ref_c):
-    """``|R_m s_c + t_m - r_c|² (M, C)`` for transforms ``t (M, 3, 4)`` and pairs ``src_c, ref_c (C, 3)``, as one
-    ``(M, 15) @ (15, C)`` product (|s|² + |r|² + |t|² + 2 (Rᵀt)·s - 2 t·r - 2 vec(R)·vec(r sᵀ)) instead of
-    materialising the ``(M, C, 3)`` moved points: 5x faster on the CPU (4,096 samples, 512 pairs)."""
-    rot, trans = t[:, :, :3], t[:, :, 3]
-    per_t = np.concatenate([rot.reshape(-1, 9), np.einsum("mji,mj->mi", rot, trans), trans], axis=1)  # (M, 15)
-    per_c = np.concatenate([-2.0 * (ref_c[:, :, None] * src_c[:, None, :]).reshape(-1, 9), 2.0 * src_c,
-                            -2.0 * ref_c], axis=1)  # (C, 15)
-    return per_t @ per_c.T + np.sum(trans**2, -1)[:, None] + (np.sum(src_c**2, -1) + np.sum(ref_c**2, -1))[None]
+@numba.njit(cache=True)
+def _largest_eigenvector(n):
+    """Unit eigenvector ``(4,)`` of the largest eigenvalue of a symmetric ``n (4, 4)`` (cyclic Jacobi sweeps)."""
+    a = n.copy()
+    v = np.eye(4)
+    for _ in range(12):
+        off = 0.0
+        for p in range(3):
+            for q in range(p + 1, 4):
+                off += a[p, q] * a[p, q]
+        if off < 1e-30 * (a[0, 0] ** 2 + a[1, 1] ** 2 + a[2, 2] ** 2 + a[3, 3] ** 2 + 1e-300):
+            break
+        for p in range(3):
+            for q in range(p + 1, 4):
+                if a[p, q] == 0.0:
+                    continue
+                theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
+                t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(4):  # a = J^T a J, columns then rows
+                    akp, akq = a[k, p], a[k, q]
+                    a[k, p] = c * akp - s * akq
+                    a[k, q] = s * akp + c * akq
+                for k in range(4):
+                    apk, aqk = a[p, k], a[q, k]
+                    a[p, k] = c * apk - s * aqk
+                    a[q, k] = s * apk + c * aqk
+                for k in range(4):
+                    vkp, vkq = v[k, p], v[k, q]
+                    v[k, p] = c * vkp - s * vkq
+                    v[k, q] = s * vkp + c * vkq
+    best = 0
+    for k in range(1, 4):
+        if a[k, k] > a[best, best]:
+            best = k
+    return v[:, best]
 
 
-def _kabsch(a, b):
-    """Rigid transforms ``(M, 3, 4)`` mapping 3-point samples ``a (M, 3, 3)`` onto ``b`` (least squares,
-    reflection fixed)."""
-    ca, cb = a.mean(axis=1), b.mean(axis=1)
-    u, _, vh = np.linalg.svd(np.swapaxes(a - ca[:, None], 1, 2) @ (b - cb[:, None]))
-    v = np.swapaxes(vh, 1, 2)
-    v[:, :, 2] *= np.sign(np.linalg.det(v @ np.swapaxes(u, 1, 2)))[:, None]
-    rot = v @ np.swapaxes(u, 1, 2)
-    return np.concatenate([rot, (cb - np.einsum("mij,mj->mi", rot, ca))[:, :, None]], axis=2)
+@numba.njit(cache=True)
+def _rigid_from_samples(src_c, ref_c, sample, out):
+    """Writes into ``out (3, 4)`` the least-squares rigid transform of a 3-point ``sample (3,)`` of correspondences
+    ``src_c -> ref_c`` (Horn's quaternion method: the largest eigenvector of the 4x4 matrix of the centred
+    cross-covariance; a rotation by construction, the same as Kabsch's SVD to 1e-12)."""
+    ca, cb = np.zeros(3), np.zeros(3)
+    for j in range(3):
+        for d in range(3):
+            ca[d] += src_c[sample[j], d] / 3.0
+            cb[d] += ref_c[sample[j], d] / 3.0
+    s = np.zeros((3, 3))  # s[x, y] = sum over the sample of a_x b_y, centred
+    for j in range(3):
+        for x in range(3):
+            for y in range(3):
+                s[x, y] += (src_c[sample[j], x] - ca[x]) * (ref_c[sample[j], y] - cb[y])
+    n = np.empty((4, 4))
+    n[0, 0], n[1, 1] = s[0, 0] + s[1, 1] + s[2, 2], s[0, 0] - s[1, 1] - s[2, 2]
+    n[2, 2], n[3, 3] = -s[0, 0] + s[1, 1] - s[2, 2], -s[0, 0] - s[1, 1] + s[2, 2]
+    n[0, 1], n[0, 2], n[0, 3] = s[1, 2] - s[2, 1], s[2, 0] - s[0, 2], s[0, 1] - s[1, 0]
+    n[1, 2], n[1, 3], n[2, 3] = s[0, 1] + s[1, 0], s[2, 0] + s[0, 2], s[1, 2] + s[2, 1]
+    for p in range(4):
+        for q in range(p):
+            n[p, q] = n[q, p]
+    w, x, y, z = _largest_eigenvector(n)
+    out[0, 0], out[0, 1], out[0, 2] = w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)
+    out[1, 0], out[1, 1], out[1, 2] = 2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)
+    out[2, 0], out[2, 1], out[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z
+    for d in range(3):
+        out[d, 3] = cb[d] - (out[d, 0] * ca[0] + out[d, 1] * ca[1] + out[d, 2] * ca[2])
 
 
+@numba.njit(cache=True)
+def _within(t, src_c, ref_c, i, sq_distance):
+    """Whether correspondence ``i`` lands within the distance under ``t (3, 4)``."""
+    total = 0.0
+    for d in range(3):
+        moved = t[d, 0] * src_c[i, 0] + t[d, 1] * src_c[i, 1] + t[d, 2] * src_c[i, 2] + t[d, 3] - ref_c[i, d]
+        total += moved * moved
+    return total <= sq_distance
+
+
+@numba.njit(cache=True)
 def _score_samples(src_c, ref_c, samples, max_distance):
     """Transforms ``(M, 3, 4)`` of 3-point samples ``(M, 3)`` of correspondences ``src_c, ref_c (C, 3)`` and their
     inlier counts ``(M,)``, -1 where the sample's own points do not land within ``max_distance`` (Open3D's
-    distance checker)."""
-    a, b = src_c[samples], ref_c[samples]  # (M, 3, 3)
-    t = _kabsch(a, b)
-    dist_ok = np.all(np.linalg.norm(se3.apply(t, a) - b, axis=-1) <= max_distance, axis=-1)
-    inliers = np.count_nonzero(_moved_sq_distances(t, src_c, ref_c) <= max_distance**2, axis=-1)
-    return t, np.where(dist_ok, inliers, -1)
+    distance checker). One compiled loop: 9x faster than batched NumPy SVDs and an ``(M, 15) @ (15, C)``
+    product (2,048 samples, 156 correspondences: 2.8 against 25.5 ms), the same counts."""
+    transforms = np.zeros((samples.shape[0], 3, 4))
+    counts = np.full(samples.shape[0], -1, np.int64)
+    sq_distance = max_distance * max_distance
+    for k in range(samples.shape[0]):
+        t = transforms[k]
+        _rigid_from_samples(src_c, ref_c, samples[k], t)
+        if not (_within(t, src_c, ref_c, samples[k, 0], sq_distance) and _within(t, src_c, ref_c, samples[k, 1],
+                sq_distance) and _within(t, src_c, ref_c, samples[k, 2], sq_distance)):
+            continue
+        count = 0
+        for i in range(src_c.shape[0]):
+            count += _within(t, src_c, ref_c, i, sq_distance)
+        counts[k] = count
+    return transforms, counts
 
 
 def _edge_lengths_agree(a: np.ndarray, b: np.ndarray, edge_ratio: float) -> np.ndarray:
@@ -92,14 +164,13 @@ def _edge_lengths_agree(a: np.ndarray, b: np.ndarray, edge_ratio: float) -> np.n
 
 def ransac_hypotheses(src: np.ndarray, ref: np.ndarray, correspondences: np.ndarray, max_distance: float, *,
                       samples: int = 8192, edge_ratio: float = 0.9, top_k: int = 4, min_angle_deg: float = 45.0,
-                      seed: int = 0, chunk: int = 2048) -> Hypotheses:
+                      seed: int = 0) -> Hypotheses:
     """The ``top_k`` best RANSAC transforms of ``src, ref (·, 3)`` from ``correspondences (C, 2)``, each at
     least ``min_angle_deg`` from the better ones (a symmetric shape's flip survives beside the truth).
 
     ``samples`` random 3-point samples are drawn (``seed``); a sample whose edge lengths disagree by more than
     ``edge_ratio`` is rejected before it is solved (NumPy), one whose points do not land within
-    ``max_distance`` after (solved ``chunk`` samples at a time); the rest are ranked by how many
-    correspondences they bring within ``max_distance``.
+    ``max_distance`` after; the rest are ranked by how many correspondences they bring within ``max_distance``.
     """
     c = len(correspondences)
     if c < 3:
@@ -112,10 +183,9 @@ def ransac_hypotheses(src: np.ndarray, ref: np.ndarray, correspondences: np.ndar
     passing = np.flatnonzero(~repeated & _edge_lengths_agree(src[correspondences[draws, 0]],
                                                              ref[correspondences[draws, 1]], edge_ratio))
     transforms = np.zeros((samples, 3, 4))
-    scores = np.full(samples, -1, np.int64)
-    for start in range(0, len(passing), chunk):  # only the samples the cheap checker passes are solved
-        part = passing[start:start + chunk]
-        transforms[part], scores[part] = _score_samples(src_c, ref_c, draws[part], max_distance)
+    scores = np.full(samples, -1, np.int64)  # only the samples the cheap checker passes are solved
+    if len(passing):
+        transforms[passing], scores[passing] = _score_samples(src_c, ref_c, draws[passing], float(max_distance))
     order = np.argsort(-scores, kind="stable")
     ranked = order[scores[order] >= MIN_INLIERS]
     picked = ranked[se3.distinct_rotations(transforms[ranked, :, :3], min_angle_deg, top_k)]
