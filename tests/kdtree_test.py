@@ -1,4 +1,4 @@
-"""The pipeline's k-d tree: SciPy's neighbours and conventions (missing: ``inf``, index ``n``)."""
+"""The pipeline's k-d tree: SciPy's neighbours and conventions (missing: ``inf``, index ``n``); pickling."""
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -28,3 +28,16 @@ def test_an_empty_query_and_float32_points():
     d, i = tree.query(tree.data[:4])
     np.testing.assert_array_equal(i, np.arange(4))
     np.testing.assert_array_equal(d, 0.0)
+
+
+def test_a_pickled_tree_answers_the_same():
+    """A tree sent to another process (a Dask worker) is built again there from its points."""
+    import pickle
+
+    rng = np.random.default_rng(1)
+    points, queries = rng.uniform(-1, 1, (500, 3)), rng.uniform(-1, 1, (50, 3))
+    tree = kdtree.KdTree(points)
+    copy = pickle.loads(pickle.dumps(tree))
+    assert np.array_equal(copy.data, tree.data) and copy.n == tree.n
+    for a, b in zip(copy.query(queries, k=3), tree.query(queries, k=3)):
+        np.testing.assert_array_equal(a, b)

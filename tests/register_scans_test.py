@@ -1,12 +1,17 @@
 """The ``rpmnet-register-scans`` CLI: one-line errors that write nothing, the poses, merged cloud and plot it
-writes, a scan that overlaps nothing left out."""
+writes, a scan that overlaps nothing left out, a SIGKILLed run resumed from its ``--cache``."""
 
 import os
+import re
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
 
-from conftest import DATA, require, rotation_error_deg, synthetic_scans
+from conftest import DATA, require, ring_scans, rotation_error_deg, synthetic_scans
 from rpmnet_jax.cli import register_scans
 from rpmnet_jax.geometry import sampling
 from rpmnet_jax.io import clouds as cloud_io
@@ -172,3 +177,55 @@ def test_scanner_files_with_bad_input_exit_2_and_write_nothing(tmp_path, capsys)
         err = capsys.readouterr().err
         assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, (message, err)
         assert not out.exists() and not (tmp_path / "m.ply").exists()
+
+
+def test_bad_scheduler_or_cache_exits_2_and_writes_nothing(tmp_path, capsys):
+    clouds, _ = synthetic_scans()
+    paths = _write_scans(tmp_path, clouds, ["s0", "s1", "s2"])
+    out = tmp_path / "poses.conf"
+    (tmp_path / "file").write_text("x")
+    cases = {"--scheduler must be": ["--scheduler", "cluster"], "got '0'": ["--scheduler", "0"],
+             "is a file": ["--cache", str(tmp_path / "file")],
+             "does not exist": ["--cache", str(tmp_path / "no" / "cache")]}
+    for message, flags in cases.items():
+        rc = register_scans.main(paths + ["--out-poses", str(out), "--cache", str(tmp_path / "c")] + flags)
+        err = capsys.readouterr().err
+        assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, (message, err)
+        assert not out.exists() and not (tmp_path / "c").exists() and not (tmp_path / "no").exists()
+
+
+_CLI = [sys.executable, "-c", "from rpmnet_jax.cli.register_scans import entry; entry()"]
+
+
+@pytest.mark.slow  # three runs of the CLI in their own processes
+def test_a_sigkilled_run_resumes_from_its_cache_with_the_same_poses(tmp_path, random_weights):
+    clouds, _ = ring_scans(6)
+    paths = _write_scans(tmp_path, clouds, [f"scan{k}" for k in range(6)])
+    cache = tmp_path / "cache"
+    command = _CLI + paths + ["--checkpoint", random_weights, "--cache", str(cache)]
+    run = subprocess.Popen(command + ["--out-poses", str(tmp_path / "killed.conf")], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 600
+    while time.time() < deadline and not (cache.is_dir() and any(f.endswith(".npz") for f in os.listdir(cache))):
+        assert run.poll() is None, run.communicate()[1][-2000:]
+        time.sleep(0.01)
+    run.send_signal(signal.SIGKILL)
+    assert run.wait(timeout=30) == -signal.SIGKILL
+    assert not (tmp_path / "killed.conf").exists()  # killed mid-run
+    finished = {f: os.stat(cache / f).st_mtime_ns for f in os.listdir(cache) if f.endswith(".npz")}
+
+    resumed = subprocess.run(command + ["--out-poses", str(tmp_path / "resumed.conf")], capture_output=True,
+                             text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    reused, written = map(int, re.search(r"(\d+) pair results reused, (\d+) computed", resumed.stdout).groups())
+    assert reused == len(finished) and written > 0  # none of the finished pairs computed again
+    assert len([f for f in os.listdir(cache) if f.endswith(".npz")]) == reused + written
+    assert all(os.stat(cache / f).st_mtime_ns == t for f, t in finished.items())
+
+    fresh = subprocess.run(_CLI + paths + ["--checkpoint", random_weights, "--out-poses", str(tmp_path / "fresh.conf")],
+                           capture_output=True, text=True, timeout=600)
+    assert fresh.returncode == 0, fresh.stderr[-2000:]
+    a, b = scan_poses.read_poses(str(tmp_path / "resumed.conf")), scan_poses.read_poses(str(tmp_path / "fresh.conf"))
+    assert sorted(a) == sorted(b) and len(a) == 6
+    for name in a:
+        np.testing.assert_allclose(a[name], b[name], atol=1e-9)

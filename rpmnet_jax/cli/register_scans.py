@@ -50,6 +50,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--refine", choices=("icp", "none"), default="icp",
                    help="final ICP rounds over every overlapping pair (default), or none")
     p.add_argument("--seed", type=int, default=0, help="seed of the samplings")
+    p.add_argument("--scheduler", default=None,
+                   help="run the pair registrations on Dask: 'local' (or a worker count) for worker processes on "
+                        "this machine, tcp://HOST:8786 for a running scheduler (default: in this process)")
+    p.add_argument("--cache", default=None, metavar="DIR",
+                   help="keep every finished pair result in DIR; a run again with the same DIR reuses them "
+                        "(a killed run resumes; a changed scan's pairs are computed again)")
     p.add_argument("--quiet", action="store_true", help="no progress bars (there are none when stderr is not a "
                    "terminal either)")
     return p
@@ -104,6 +110,18 @@ def _read_scans(paths: list, columns) -> tuple:
     return labels, clouds, stored, notes
 
 
+def _engine(args) -> tuple:
+    """``(scheduler, PairCache or None)`` of ``--scheduler`` and ``--cache``, checked before anything runs."""
+    from rpmnet_jax.multiway import pair_cache, pair_engine
+
+    try:
+        scheduler = pair_engine.check_scheduler(args.scheduler)
+    except ValueError:
+        raise ValueError(f"--scheduler must be 'local', a worker count >= 1 or a scheduler address like "
+                         f"tcp://HOST:8786, got {args.scheduler!r}") from None
+    return scheduler, pair_cache.PairCache(args.cache) if args.cache else None
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     import numpy as np
@@ -124,6 +142,7 @@ def main(argv=None) -> int:
             from rpmnet_jax.report import pages
             pages.check_path(args.html)
         runtime.check_outputs(args.out_poses, args.out_merged, args.plot, args.html)
+        scheduler, cache = _engine(args)
         if args.out_merged:
             cloud_io.check_format(args.out_merged)
         if args.merged_voxel is not None and not args.merged_voxel > 0:
@@ -140,7 +159,8 @@ def main(argv=None) -> int:
             warnings.simplefilter("always")
             try:
                 result = scan_alignment.align_scans([c for c, _ in clouds], [n for _, n in clouds], options=options,
-                                                    checkpoint=args.checkpoint, progress=bars)
+                                                    checkpoint=args.checkpoint, progress=bars,
+                                                    scheduler=scheduler, cache=cache)
             finally:
                 bars.close()
     except (ValueError, OSError) as e:  # bad input, or a file that is missing, a folder, or unreadable
@@ -167,6 +187,8 @@ def main(argv=None) -> int:
     print(f"{len(result.edges)} edges, {len(result.rejected)} rejected; voxel {result.voxel_size:.4g}, "
           f"max_correspondence_distance {result.max_correspondence_distance:.4g}; time {clock.elapsed():.2f} s "
           f"(read {t_read:.2f}  {stages})")
+    if cache is not None:
+        print(f"cache {args.cache}: {cache.reused} pair results reused, {cache.written} computed and written")
 
     poses_io.write_poses(args.out_poses, [names[s] for s in placed], [result.poses[s] @ stored[s] for s in placed])
     finite = {s: np.all(np.isfinite(clouds[s][0]), axis=1) for s in placed}  # rows align_scans dropped too

@@ -21,6 +21,9 @@ class KdTree:
         self.n = len(self.data)
         self._tree = _PyKDTree(self.data)
 
+    def __reduce__(self):  # pickled as its points; the tree is built again where it is unpickled (a Dask worker)
+        return KdTree, (self.data,)
+
     def query(self, queries: np.ndarray, k: int = 1, distance_upper_bound: float = np.inf):
         """``(distances, indices)`` of the ``k`` nearest points of each of ``queries (Q, 3)``: ``(Q,)`` each for
         ``k = 1``, else ``(Q, k)``, nearest first; beyond ``distance_upper_bound`` distance ``inf``, index ``n``."""

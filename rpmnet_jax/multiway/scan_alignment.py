@@ -35,8 +35,8 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
-from rpmnet_jax.geometry import cloud, icp, normals as normals_lib, sampling, scoring
-from rpmnet_jax.multiway import edges as edges_lib, options as options_lib, pose_graph
+from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, scoring
+from rpmnet_jax.multiway import edges as edges_lib, options as options_lib, pair_engine, pose_graph
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment
 from rpmnet_jax.weights import loading
@@ -153,31 +153,37 @@ def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, t
     return poses, edges, pending
 
 
-def _refine_round(scans, poses, placed, max_dist, min_overlap, refine_points, keep, rng, tick):
-    """Step 5, one round: an ICP edge from the current poses for every placed pair predicted to overlap
-    (``tick(done, total)`` after each pair)."""
-    edges = []
-    pairs = list(itertools.combinations(sorted(placed), 2))
-    for k, (i, j) in enumerate(pairs):
-        tick(k + 1, len(pairs))
+def _refine_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_, tick):
+    """Step 5, one round: an ICP edge from the current poses for every placed pair predicted to overlap, run by
+    ``engine`` (``tick(done, total)`` as they finish)."""
+    pairs, starts = [], []
+    for i, j in itertools.combinations(sorted(placed), 2):
         predicted = np.linalg.inv(poses[j]) @ poses[i]
         if edges_lib.predicted_overlap(scans, i, j, predicted, max_dist) >= min_overlap:
-            e = edges_lib.icp_edge(scans, i, j, predicted, max_dist, rng, num_points=refine_points,
-                                   schedule=icp.REFINE_EDGE)
-            if keep(e):
-                edges.append(e)
-    return edges
+            pairs.append((i, j))
+            starts.append(predicted)
+    return [e for e in engine.refine_edges(pairs, starts, round_, tick) if keep(e)]
 
 
 def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = options_lib.ScanOptions(), params=None,
-                checkpoint=None, cfg: config_lib.RPMNetConfig | None = None, progress=None) -> ScanAlignment:
+                checkpoint=None, cfg: config_lib.RPMNetConfig | None = None, progress=None, scheduler=None,
+                cache=None) -> ScanAlignment:
     """Registers the scans ``clouds[i] (N_i, 3)`` (normals ``(N_i, 3)`` optional, per scan) into the frame of
     the first one; see the module docstring and :class:`~rpmnet_jax.multiway.options.ScanOptions`.
     ``checkpoint``: as :func:`rpmnet_jax.align`'s (default the shipped model, or pass ``params``).
-    ``progress``: called as ``progress(stage, done, total)`` as the long stages advance (a CLI draws bars)."""
+    ``progress``: called as ``progress(stage, done, total)`` as the long stages advance (a CLI draws bars).
+    ``scheduler``: where the pair registrations run (:mod:`rpmnet_jax.multiway.pair_engine`): ``None`` this
+    process, ``"local"`` or a worker count an embedded Dask ``LocalCluster``, ``"tcp://HOST:8786"`` a running
+    Dask scheduler (or a ``distributed.Client``); the same poses on each. ``cache``: a folder (or
+    :class:`~rpmnet_jax.multiway.pair_cache.PairCache`) keeping every finished pair result; a run again with
+    the same scans, options and cache reuses them."""
     if not isinstance(options, options_lib.ScanOptions):
         raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")
-    o = options
+    with pair_engine.PairEngine(scheduler, cache) as engine:
+        return _align_scans(engine, clouds, normals, options, params, checkpoint, cfg, progress)
+
+
+def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) -> ScanAlignment:
 
     def ticker(stage):
         """``tick(done, total)`` of ``stage``: passed on to ``progress``, if any."""
@@ -193,21 +199,15 @@ def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = opti
         network_noise = tuple(NETWORK_NOISE_SCALE * x for x in noise)
         params = params if params is not None else loading.load_params(checkpoint)
         cfg = cfg or config_lib.RPMNetConfig()
-        rng = np.random.default_rng(o.seed)
+        engine.bind(scans, params, cfg, pair_engine.Settings(max_dist, o.num_points, o.num_iters, o.batch_size,
+                                                             NETWORK_ICP_POINTS, o.refine_points, o.seed))
 
     def good(e, fitness):
         return e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
 
     with clock.stage("network"):  # 2. every candidate pair from the identity, batched, then a short ICP
         pairs = _candidate_pairs(num_scans, o.all_pairs_up_to, o.window)
-        starts = edges_lib.network_starts(params, scans, pairs, cfg=cfg, num_points=o.num_points,
-                                          num_iters=o.num_iters, batch_size=o.batch_size, seed=o.seed)
-        tick, edges = ticker("network edges"), []
-        for k, ((i, j), s) in enumerate(zip(pairs, starts)):
-            edges.append(edges_lib.icp_edge(scans, i, j, s, max_dist, rng, num_points=NETWORK_ICP_POINTS,
-                                            schedule=icp.NETWORK_EDGE, stage="network"))
-            tick(k + 1, len(pairs))
-        edges = [e for e in edges if good(e, o.min_fitness)]
+        edges = [e for e in engine.network_edges(pairs, ticker("network edges")) if good(e, o.min_fitness)]
 
     rejected = []  # 3. robust pose graph over them: the largest consistent component is placed
     poses = np.full((num_scans, 4, 4), np.nan)
@@ -231,15 +231,15 @@ def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = opti
     final_edges, final_rejected = edges + global_edges, []
     for r in range(o.refine_rounds if o.refine == "icp" and len(placed) > 1 else 0):
         with clock.stage("refine"):
-            round_edges = _refine_round(scans, poses, placed, max_dist, o.min_overlap, o.refine_points,
-                                        lambda e: good(e, o.min_overlap), rng, ticker(f"refinement round {r + 1}"))
+            round_edges = _refine_round(engine, scans, poses, placed, max_dist, o.min_overlap,
+                                        lambda e: good(e, o.min_overlap), r, ticker(f"refinement round {r + 1}"))
             if not round_edges:
                 break
             poses, final_edges, final_rejected = _solve(num_scans, round_edges, min(placed), noise, o.seed)
         dropped = [s for s in placed if not np.isfinite(poses[s, 0, 0])]
         if dropped:
             warnings.warn(f"scans {dropped}: no edge consistent with the others after refinement; left out",
-                          LeftOutWarning, stacklevel=2)
+                          LeftOutWarning, stacklevel=3)
             placed = [s for s in placed if s not in dropped]
     if o.refine == "none" and global_edges:
         with clock.stage("graph"):
@@ -247,7 +247,7 @@ def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = opti
 
     if pending:
         warnings.warn(f"scans {pending} overlap none of the placed scans (no registration onto them reached "
-                      f"fitness {o.min_fitness} with coinciding surfaces); left out", LeftOutWarning, stacklevel=2)
+                      f"fitness {o.min_fitness} with coinciding surfaces); left out", LeftOutWarning, stacklevel=3)
     left_out = tuple(s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0]))
     first = min(s for s in range(num_scans) if s not in left_out)
     poses = np.linalg.inv(poses[first]) @ poses  # NaN rows stay NaN

@@ -1,0 +1,242 @@
+"""The pair registrations of :func:`rpmnet_jax.align_scans` as tasks: in this process, or on a Dask cluster (an
+embedded ``LocalCluster`` of worker processes, or a running scheduler), each result kept in a
+:class:`~rpmnet_jax.multiway.pair_cache.PairCache` when one is given.
+
+Tasks are pure functions of the scans, the pairs, the settings and the seed: a pair's random sample comes
+from its own generator, seeded by ``(seed, stage, i, j)``, so its edge does not depend on which worker ran it,
+in what order, or whether it ran again after a worker died. Network edges run in fixed chunks of
+``batch_size`` pairs (one batched network call each; a chunk's composition depends only on the pair list),
+refinement edges one pair a task. The scans and the network's parameters are sent to every worker once;
+each worker compiles the network once per process (through JAX's persistent compilation cache when this
+process has one). Results are collected as they finish; the pose graph stays with the caller.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import NamedTuple
+
+import numpy as np
+
+from rpmnet_jax.geometry import icp
+from rpmnet_jax.multiway import edges as edges_lib, pair_cache
+
+CONNECT_TIMEOUT = "20s"  # waiting for a scheduler that does not answer
+NETWORK_TAG = 0  # a pair's generator: (seed, NETWORK_TAG, i, j); refinement round r: (seed, 1 + r, i, j)
+_PARAMS = object()  # stands for the network's parameters among a task's arguments (sent once, not per task)
+
+
+class Settings(NamedTuple):
+    """What decides a pair's edge besides the two scans (caller's units)."""
+
+    max_distance: float  # correspondence distance
+    num_points: int  # network samples per scan
+    num_iters: int  # network iterations
+    batch_size: int  # pairs per network call (a chunk)
+    network_icp_points: int  # source points of the short ICP after the network
+    refine_points: int  # source points of a refinement edge's ICP
+    seed: int
+
+
+def pair_rng(seed: int, tag: int, i: int, j: int) -> np.random.Generator:
+    """The generator of pair ``(i, j)`` in stage ``tag``: the same wherever and whenever the pair runs."""
+    return np.random.default_rng([int(seed), int(tag), int(i), int(j)])
+
+
+def network_chunk(scans, chunk, todo, params, cfg, settings: Settings, compile_cache=None, tick=None) -> list:
+    """Network answers for the pairs ``chunk [(i, j), ...]`` in one batched call (a pair may repeat: padding),
+    then the short ICP of those in ``todo``: their :class:`~rpmnet_jax.multiway.edges.Edge` in chunk order
+    (``tick()`` after each)."""
+    _use_compile_cache(compile_cache)
+    s = settings
+    starts = edges_lib.network_starts(params, scans, chunk, cfg=cfg, num_points=s.num_points,
+                                      num_iters=s.num_iters, batch_size=len(chunk), seed=s.seed)
+    out = []
+    for (i, j), start in dict(zip(chunk, starts)).items():
+        if (i, j) in todo:
+            out.append(edges_lib.icp_edge(scans, i, j, start, s.max_distance, pair_rng(s.seed, NETWORK_TAG, i, j),
+                                          num_points=s.network_icp_points, schedule=icp.NETWORK_EDGE,
+                                          stage="network"))
+            if tick is not None:
+                tick()
+    return out
+
+
+def refine_pair(scans, i, j, start, round_, settings: Settings) -> list:
+    """``[edge]``: ICP of scan ``i`` onto scan ``j`` from ``start (4, 4)`` (refinement round ``round_``)."""
+    s = settings
+    return [edges_lib.icp_edge(scans, i, j, start, s.max_distance, pair_rng(s.seed, 1 + round_, i, j),
+                               num_points=s.refine_points, schedule=icp.REFINE_EDGE)]
+
+
+def _use_compile_cache(folder) -> None:
+    """In a worker: JAX's persistent compilation cache in ``folder``, unless the worker has its own (or none
+    can be made there)."""
+    if not folder:
+        return
+    import jax
+
+    if jax.config.jax_compilation_cache_dir:
+        return
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError:
+        return
+    jax.config.update("jax_compilation_cache_dir", folder)
+
+
+def check_scheduler(scheduler):
+    """``scheduler`` if usable: ``None`` (this process), ``"local"`` or a worker count ``n ≥ 1`` (an embedded
+    ``LocalCluster``), a scheduler address ``"tcp://HOST:PORT"`` (any ``scheme://``), or a
+    ``distributed.Client``; else ``ValueError``."""
+    if scheduler is None or hasattr(scheduler, "submit"):
+        return scheduler
+    if isinstance(scheduler, str) and scheduler.strip().isdigit():
+        scheduler = int(scheduler)
+    if isinstance(scheduler, (int, np.integer)) and not isinstance(scheduler, bool):
+        if scheduler < 1:
+            raise ValueError(f"scheduler: a local cluster needs at least 1 worker, got {scheduler}")
+        return int(scheduler)
+    if scheduler == "local" or (isinstance(scheduler, str) and "://" in scheduler
+                                and scheduler.split("://", 1)[1].strip()):
+        return scheduler
+    raise ValueError(f"scheduler must be None, 'local', a worker count or an address like tcp://HOST:8786, "
+                     f"got {scheduler!r}")
+
+
+class PairEngine:
+    """Runs pair tasks on ``scheduler`` (see :func:`check_scheduler`), keeping results in ``cache`` (a folder or
+    a :class:`~rpmnet_jax.multiway.pair_cache.PairCache`; ``None``: none). A context manager: leaving it
+    closes the cluster it started or the connection it made."""
+
+    def __init__(self, scheduler=None, cache=None):
+        self.scheduler = check_scheduler(scheduler)
+        self.cache = cache if cache is None or isinstance(cache, pair_cache.PairCache) else pair_cache.PairCache(cache)
+        self.client = self._cluster = self._scan_futures = self._params_future = None
+        self._own_client = False
+
+    def __enter__(self):
+        if self.scheduler is None:
+            return self
+        try:
+            import distributed
+        except ImportError as e:
+            raise ValueError("scheduler= needs Dask distributed: pip install 'dask[distributed]'") from e
+        if hasattr(self.scheduler, "submit"):
+            self.client = self.scheduler
+            return self
+        self._own_client = True
+        if isinstance(self.scheduler, int) or self.scheduler == "local":
+            workers = self.scheduler if isinstance(self.scheduler, int) else None
+            self._cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                                     dashboard_address=None)
+            self.client = distributed.Client(self._cluster)
+            return self
+        try:
+            self.client = distributed.Client(self.scheduler, timeout=CONNECT_TIMEOUT)
+        except (OSError, TimeoutError) as e:
+            raise ValueError(f"no Dask scheduler answers at {self.scheduler} ({type(e).__name__})") from e
+        return self
+
+    def __exit__(self, *exc):
+        if self._own_client and self.client is not None:
+            self.client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+        self.client = self._cluster = self._scan_futures = self._params_future = None
+
+    def bind(self, scans, params, cfg, settings: Settings) -> None:
+        """The scans (:class:`~rpmnet_jax.multiway.edges.Scan`), network and settings of the coming tasks; sent
+        to every worker here, once."""
+        self.scans, self.params, self.cfg, self.settings = scans, params, cfg, settings
+        self._digests = [pair_cache.scan_digest(s) for s in scans] if self.cache is not None else None
+        self._params_digest = pair_cache.params_digest(params) if self.cache is not None else None
+        if self.client is not None:
+            import jax
+
+            self._scan_futures = self.client.scatter(list(scans), broadcast=True)
+            self._params_future = self.client.scatter([jax.tree.map(np.asarray, params)], broadcast=True)[0]
+            self._compile_cache = jax.config.jax_compilation_cache_dir or None
+
+    def network_edges(self, pairs, tick=None) -> list:
+        """Network edges (network + short ICP) of ``pairs [(i, j), ...]``, in that order; ``tick(done, total)``
+        as they finish."""
+        s = self.settings
+        key = (self._params_digest, repr(self.cfg), s.num_points, s.num_iters, s.batch_size, s.network_icp_points,
+               icp.NETWORK_EDGE, s.max_distance, s.seed)
+        names = {p: self._name("network", p, key) for p in pairs}
+        found = self._load(names)
+        tasks = []
+        size = min(s.batch_size, 1 << max(0, len(pairs) - 1).bit_length())  # one batch shape: one compile
+        for k in range(0, len(pairs), size):
+            chunk = [tuple(p) for p in pairs[k:k + size]]
+            todo = [p for p in chunk if p not in found]
+            if todo:  # the last chunk padded with its last pair
+                tasks.append((network_chunk, (chunk + chunk[-1:] * (size - len(chunk)), todo, _PARAMS, self.cfg, s),
+                              chunk, todo))
+        return self._run(tasks, names, found, pairs, tick)
+
+    def refine_edges(self, pairs, starts, round_: int, tick=None) -> list:
+        """ICP edges of ``pairs [(i, j), ...]`` from ``starts (P, 4, 4)`` in refinement round ``round_``."""
+        s = self.settings
+        starts = {tuple(p): np.asarray(t, np.float64) for p, t in zip(pairs, starts)}
+        names = {p: self._name(f"refine{round_}", p, (s.refine_points, icp.REFINE_EDGE, s.max_distance, s.seed,
+                                                      starts[p])) for p in starts}
+        found = self._load(names)
+        tasks = [(refine_pair, (i, j, starts[(i, j)], round_, s), [(i, j)], [(i, j)])
+                 for i, j in starts if (i, j) not in found]
+        return self._run(tasks, names, found, list(starts), tick)
+
+    def _name(self, stage, pair, key):
+        if self.cache is None:
+            return None
+        i, j = pair
+        return pair_cache.edge_name(stage, i, j, self._digests[i], self._digests[j], *key)
+
+    def _load(self, names) -> dict:
+        if self.cache is None:
+            return {}
+        found = {p: self.cache.load(n) for p, n in names.items()}
+        return {p: e for p, e in found.items() if e is not None}
+
+    def _run(self, tasks, names, found, pairs, tick) -> list:
+        """Runs ``tasks [(fn, args, pairs it needs the scans of, pairs it returns)]``; stores each new edge;
+        returns the edges of ``pairs`` in order."""
+        done, total = [len(found)], len(pairs)
+        edges = dict(found)
+
+        def finished(new):
+            for e in new:
+                edges[(e.source, e.target)] = e
+                if self.cache is not None:
+                    self.cache.store(names[(e.source, e.target)], e)
+
+        def advance(n=1):
+            done[0] += n
+            if tick is not None:
+                tick(done[0], total)
+
+        if found and tick is not None:
+            tick(done[0], total)
+        if self.client is None:
+            for fn, args, _, returns in tasks:
+                args = tuple(self.params if a is _PARAMS else a for a in args)
+                if fn is network_chunk:
+                    finished(fn(self.scans, *args, tick=advance))
+                else:
+                    finished(fn(self.scans, *args))
+                    advance()
+        else:
+            import distributed
+
+            futures = []
+            for fn, args, needs, returns in tasks:
+                scans = {s: self._scan_futures[s] for s in sorted({s for p in needs for s in p})}
+                args = tuple(self._params_future if a is _PARAMS else a for a in args)
+                extra = {"compile_cache": self._compile_cache} if fn is network_chunk else {}
+                futures.append(self.client.submit(fn, scans, *args, pure=True, **extra))
+            for future in distributed.as_completed(futures):
+                new = future.result()
+                finished(new)
+                advance(len(new))
+        return [edges[tuple(p)] for p in pairs]
