@@ -175,6 +175,7 @@ def test_a_worker_killed_mid_run_still_gives_the_same_poses(dask_cluster, in_pro
 
     result = rpmnet_jax.align_scans(clouds, options=OPTIONS, checkpoint=random_weights, scheduler=address,
                                     progress=progress)
+    print(f"worker killed after {killed[0]} of 10 network edges")
     assert killed and workers[1].wait(timeout=10) == -signal.SIGKILL
     with distributed.Client(address, timeout="30s") as client:
         assert len(client.scheduler_info()["workers"]) == 1  # the run finished on the other worker

@@ -1,5 +1,6 @@
 """The ``rpmnet-register-scans`` CLI: one-line errors that write nothing, the poses, merged cloud and plot it
-writes, a scan that overlaps nothing left out, a SIGKILLed run resumed from its ``--cache``."""
+writes, a scan that overlaps nothing left out, a SIGKILLed run resumed from its ``--cache`` (the poses of a run
+from scratch on Dask workers)."""
 
 import os
 import re
@@ -206,10 +207,11 @@ def test_a_sigkilled_run_resumes_from_its_cache_with_the_same_poses(tmp_path, ra
     run = subprocess.Popen(command + ["--out-poses", str(tmp_path / "killed.conf")], stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 600
-    while time.time() < deadline and not (cache.is_dir() and any(f.endswith(".npz") for f in os.listdir(cache))):
+    while time.time() < deadline and not (cache.is_dir() and any(f.startswith("refine0-")
+                                                                  for f in os.listdir(cache))):
         assert run.poll() is None, run.communicate()[1][-2000:]
         time.sleep(0.01)
-    run.send_signal(signal.SIGKILL)
+    run.send_signal(signal.SIGKILL)  # in the first refinement round: the network edges are all on disk
     assert run.wait(timeout=30) == -signal.SIGKILL
     assert not (tmp_path / "killed.conf").exists()  # killed mid-run
     finished = {f: os.stat(cache / f).st_mtime_ns for f in os.listdir(cache) if f.endswith(".npz")}
@@ -218,14 +220,17 @@ def test_a_sigkilled_run_resumes_from_its_cache_with_the_same_poses(tmp_path, ra
                              text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     reused, written = map(int, re.search(r"(\d+) pair results reused, (\d+) computed", resumed.stdout).groups())
+    print(f"killed with {len(finished)} pair results on disk; resumed: {reused} reused, {written} computed")
     assert reused == len(finished) and written > 0  # none of the finished pairs computed again
     assert len([f for f in os.listdir(cache) if f.endswith(".npz")]) == reused + written
     assert all(os.stat(cache / f).st_mtime_ns == t for f, t in finished.items())
 
-    fresh = subprocess.run(_CLI + paths + ["--checkpoint", random_weights, "--out-poses", str(tmp_path / "fresh.conf")],
+    fresh = subprocess.run(_CLI + paths + ["--checkpoint", random_weights, "--out-poses", str(tmp_path / "fresh.conf"),
+                                           "--scheduler", "2"],  # from scratch, on two worker processes
                            capture_output=True, text=True, timeout=600)
     assert fresh.returncode == 0, fresh.stderr[-2000:]
     a, b = scan_poses.read_poses(str(tmp_path / "resumed.conf")), scan_poses.read_poses(str(tmp_path / "fresh.conf"))
     assert sorted(a) == sorted(b) and len(a) == 6
     for name in a:
-        np.testing.assert_allclose(a[name], b[name], atol=1e-9)
+        assert rotation_error_deg(a[name][:3, :3], b[name][:3, :3]) < 0.01
+        np.testing.assert_allclose(a[name][:3, 3], b[name][:3, 3], atol=1e-6)
