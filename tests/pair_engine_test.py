@@ -38,6 +38,14 @@ def test_scheduler_values():
             pair_engine.check_scheduler(bad)
 
 
+def test_in_process_imports_no_dask():
+    code = ("import sys; from rpmnet_jax.multiway import pair_engine, scan_alignment\n"
+            "with pair_engine.PairEngine(None): pass\n"
+            "print(sorted(m for m in ('dask', 'distributed') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stderr[-2000:]
+
+
 def test_a_pair_s_edge_does_not_depend_on_the_order():
     clouds, _ = ring_scans(4)
     scans, voxel, radius = scan_alignment._prepare_scans(clouds, None, None)
