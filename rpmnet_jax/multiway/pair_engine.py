@@ -173,7 +173,7 @@ class PairEngine:
             todo = [p for p in chunk if p not in found]
             if todo:  # the last chunk padded with its last pair
                 tasks.append((network_chunk, (chunk + chunk[-1:] * (size - len(chunk)), todo, _PARAMS, self.cfg, s),
-                              chunk, todo))
+                              chunk))
         return self._run(tasks, names, found, pairs, tick)
 
     def refine_edges(self, pairs, starts, round_: int, tick=None) -> list:
@@ -183,7 +183,7 @@ class PairEngine:
         names = {p: self._name(f"refine{round_}", p, (s.refine_points, icp.REFINE_EDGE, s.max_distance, s.seed,
                                                       starts[p])) for p in starts}
         found = self._load(names)
-        tasks = [(refine_pair, (i, j, starts[(i, j)], round_, s), [(i, j)], [(i, j)])
+        tasks = [(refine_pair, (i, j, starts[(i, j)], round_, s), [(i, j)])
                  for i, j in starts if (i, j) not in found]
         return self._run(tasks, names, found, list(starts), tick)
 
@@ -200,8 +200,8 @@ class PairEngine:
         return {p: e for p, e in found.items() if e is not None}
 
     def _run(self, tasks, names, found, pairs, tick) -> list:
-        """Runs ``tasks [(fn, args, pairs it needs the scans of, pairs it returns)]``; stores each new edge;
-        returns the edges of ``pairs`` in order."""
+        """Runs ``tasks [(fn, args, the pairs whose scans it needs)]`` (each returns a list of edges); stores each
+        new edge; returns the edges of ``pairs`` in order."""
         done, total = [len(found)], len(pairs)
         edges = dict(found)
 
@@ -219,7 +219,7 @@ class PairEngine:
         if found and tick is not None:
             tick(done[0], total)
         if self.client is None:
-            for fn, args, _, returns in tasks:
+            for fn, args, _ in tasks:
                 args = tuple(self.params if a is _PARAMS else a for a in args)
                 if fn is network_chunk:
                     finished(fn(self.scans, *args, tick=advance))
@@ -230,7 +230,7 @@ class PairEngine:
             import distributed
 
             futures = []
-            for fn, args, needs, returns in tasks:
+            for fn, args, needs in tasks:
                 scans = {s: self._scan_futures[s] for s in sorted({s for p in needs for s in p})}
                 args = tuple(self._params_future if a is _PARAMS else a for a in args)
                 extra = {"compile_cache": self._compile_cache} if fn is network_chunk else {}
