@@ -1,5 +1,5 @@
 """``align_scans``: real bunny scans into one frame, the network edges alone (``refine="none"``), each scan's size
-from its robust radius, bad options."""
+from its robust radius, bad options, a placement flagged likely wrong."""
 
 import numpy as np
 import pytest
@@ -85,3 +85,19 @@ def test_align_scans_all_bunny_scans_within_half_a_degree(bunny):
     print(dict(zip(names, errors)))
     # measured up to 0.38° and 0.5 mm over the ten scans
     assert all(rot <= 0.5 and rms <= 1e-3 for rot, rms in errors), dict(zip(names, errors))
+
+
+def test_a_placement_flagged_likely_wrong_is_reported(monkeypatch):
+    """Step 4 reports the scans whose ``align`` answer was ``likely_wrong`` (and places them all the same)."""
+    import types
+
+    clouds, _ = synthetic_scans()
+    scans, voxel, radius = scan_alignment._prepare_scans(clouds, None, None)
+    poses = np.full((len(scans), 4, 4), np.nan)
+    poses[0] = np.eye(4)
+    flags = iter([True, False])
+    monkeypatch.setattr(scan_alignment.alignment, "align", lambda *a, **k: types.SimpleNamespace(
+        transform=np.eye(4), fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=next(flags)))
+    poses, edges, pending, doubtful = scan_alignment._place_remaining(
+        scans, poses, None, None, voxel, 0.05 * radius, lambda fitness, residual: True, 0, lambda *_: None)
+    assert pending == [] and doubtful == [1] and np.isfinite(poses).all()

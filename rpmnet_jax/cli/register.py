@@ -102,8 +102,8 @@ def main(argv=None) -> int:
           f"max_correspondence_distance {result.max_correspondence_distance:.6g}  start {result.init}  "
           f"icp_iterations {result.num_iterations}{'' if result.converged else ' (not converged)'}")
     stages = "  ".join(f"{k} {v:.2f}" for k, v in result.timings.items() if k != "total")
-    print(f"confidence {result.confidence:.3f}  points {result.num_points[0]}/{result.num_points[1]}  "
-          f"time {seconds:.2f} s ({stages})")
+    print(f"confidence {result.confidence:.3f}  p_wrong {result.p_wrong:.3f}  points {result.num_points[0]}/"
+          f"{result.num_points[1]}  time {seconds:.2f} s ({stages})")
     if result.fitness < args.low_fitness:
         print(f"rpmnet-register: warning: low fitness {result.fitness:.3f}: only this share of the source has a "
               "reference point within the correspondence distance; the answer is likely wrong (try --init global, "
@@ -115,14 +115,19 @@ def main(argv=None) -> int:
               f"{second.score / result.candidates[0].score:.2f} of the best ({len(result.candidates)} distinct "
               "answers); the shape may fit itself in several poses (symmetric), so the answer may be any of them"
               f"{'' if args.out_candidates else ' (--out-candidates writes them)'}", file=sys.stderr)
+    if result.likely_wrong:
+        print(f"rpmnet-register: warning: likely wrong: p_wrong {result.p_wrong:.2f} (the calibrated probability "
+              "that the rotation is more than 5 deg off); check the answer (--html shows it), or try --init global",
+              file=sys.stderr)
     if args.out_candidates:
         cloud_io.write_candidates(args.out_candidates, result.candidates, result.information,
-                                  ambiguous=result.ambiguous)
+                                  ambiguous=result.ambiguous, p_wrong=result.p_wrong,
+                                  likely_wrong=result.likely_wrong)
     if args.out_transform:
         cloud_io.write_transform(args.out_transform, result.transform, confidence=result.confidence,
                                  fitness=result.fitness, inlier_rmse=result.inlier_rmse, start=result.init,
                                  max_correspondence_distance=result.max_correspondence_distance,
-                                 timings=result.timings)
+                                 timings=result.timings, p_wrong=result.p_wrong, likely_wrong=result.likely_wrong)
     if args.out_aligned:  # row for row as the source file (NaN rows stay NaN)
         aligned_n = None if src_n is None else src_n @ result.transform[:3, :3].T
         cloud_io.write_cloud(args.out_aligned, result.aligned, aligned_n, source.colours, source.intensity)
@@ -150,7 +155,8 @@ def _report_numbers(args, result, seconds: float) -> dict:
             "start": result.init, "ICP iterations": f"{result.num_iterations}"
                                                     f"{'' if result.converged else ' (not converged)'}",
             "confidence": result.confidence, "points used": f"{result.num_points[0]} / {result.num_points[1]}",
-            "time (s)": round(seconds, 2), "ambiguous": result.ambiguous, "candidates": candidates}
+            "time (s)": round(seconds, 2), "ambiguous": result.ambiguous, "p_wrong": round(result.p_wrong, 3),
+            "likely wrong": result.likely_wrong, "candidates": candidates}
 
 
 def entry() -> None:

@@ -173,6 +173,9 @@ def main(argv=None) -> int:
         if not issubclass(w.category, scan_alignment.LeftOutWarning):  # said below, by name
             print(f"{PROG}: warning: {w.message}", file=sys.stderr)
     placed = [s for s in range(len(paths)) if s not in result.left_out]
+    for s in result.likely_wrong:
+        print(f"{PROG}: warning: {names[s]} was placed by a registration flagged likely wrong (p_wrong at or above "
+              "the threshold); check its pose", file=sys.stderr)
     for s in result.left_out:
         print(f"{PROG}: warning: {names[s]} overlaps none of the placed scans; left out of the outputs",
               file=sys.stderr)

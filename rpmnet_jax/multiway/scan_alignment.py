@@ -15,7 +15,9 @@ Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
    edges (a flipped pair) are rejected. The largest component of the kept edges is placed;
 4. global: each scan outside it is registered onto the merged, placed scans by :func:`rpmnet_jax.align` with
    ``init="global"`` (rotation hypotheses covering every orientation, one batched call); placed when its
-   fitness is at least ``min_fitness``, else left out with a warning (it overlaps nothing);
+   fitness is at least ``min_fitness``, else left out with a warning (it overlaps nothing); a placement
+   ``align`` flags ``likely_wrong`` (:mod:`rpmnet_jax.pairwise.doubt`) is reported in ``likely_wrong`` (the
+   robust graph, not the flag, decides which edges stay);
 5. refine (``refine="icp"``, ``refine_rounds`` times): every pair whose predicted overlap is at least
    ``min_overlap`` gets an ICP edge from the current poses on up to ``refine_points`` points; the robust pose
    graph of those edges gives the poses.
@@ -59,6 +61,7 @@ class ScanAlignment(NamedTuple):
     voxel_size: float  # caller's units
     max_correspondence_distance: float  # caller's units
     timings: dict  # seconds per stage that ran: prepare, network (with the short ICP), graph, global, refine; total
+    likely_wrong: tuple = ()  # placed scans whose placement by ``align`` (step 4) was flagged ``likely_wrong``
 
 
 def _candidate_pairs(num_scans: int, all_pairs_up_to: int, window: int) -> list:
@@ -128,10 +131,10 @@ def _merged(scans, poses, placed, voxel):
 def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, tick):
     """Step 4: registers each unplaced scan onto the merged placed ones (``align``, ``init="global"``), in
     index order, merging again after each success (``tick(placed, scans)`` then). Returns (poses, placement
-    edges, scans still pending)."""
+    edges, scans still pending, placed scans whose ``align`` answer was ``likely_wrong``)."""
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
     pending = [s for s in range(len(scans)) if s not in placed]
-    edges = []
+    edges, doubtful = [], []
     grew = True
     while pending and grew:
         grew = False
@@ -143,6 +146,7 @@ def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, t
                                           a.correspondences).residuals
             if accept(a.fitness, np.median(np.abs(residuals)) if len(residuals) else np.inf):
                 poses[s] = a.transform
+                doubtful += [s] if a.likely_wrong else []  # reported; the robust graph still decides on the edges
                 edges += [edges_lib.measure(scans, s, o, np.linalg.inv(poses[o]) @ poses[s], max_dist, "global")
                           for o in placed]
                 placed.append(s)
@@ -150,7 +154,7 @@ def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, t
                 tick(len(placed), len(scans))
                 grew = True
                 break  # the model grew: merge again before the next scan
-    return poses, edges, pending
+    return poses, edges, pending, doubtful
 
 
 def _refine_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_, tick):
@@ -217,10 +221,11 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
             poses, edges, rejected = _solve(num_scans, edges, _largest_component(num_scans, edges), network_noise,
                                             o.seed)
 
-    global_edges, pending = [], [s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0])]
+    global_edges, doubtful = [], []
+    pending = [s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0])]
     if pending:  # 4. the other scans: global registration onto the merged placed scans
         with clock.stage("global"):
-            poses, global_edges, pending = _place_remaining(
+            poses, global_edges, pending, doubtful = _place_remaining(
                 scans, poses, params, cfg, voxel, max_dist, seed=o.seed, tick=ticker("placing the other scans"),
                 accept=lambda fitness, residual: (fitness >= o.min_fitness
                                                   and residual <= o.max_plane_residual * max_dist))
@@ -252,4 +257,4 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     first = min(s for s in range(num_scans) if s not in left_out)
     poses = np.linalg.inv(poses[first]) @ poses  # NaN rows stay NaN
     return ScanAlignment(poses, tuple(final_edges), tuple(rejected + final_rejected), left_out, voxel, max_dist,
-                         clock.timings())
+                         clock.timings(), tuple(s for s in doubtful if s not in left_out))

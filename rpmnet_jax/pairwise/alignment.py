@@ -25,7 +25,10 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
 5. say what is uncertain: ``candidates`` lists the distinct refined answers (rotations more than
    ``AMBIGUITY_DEG`` apart), best first, with their scores; ``ambiguous`` is set when the second reaches
    ``AMBIGUITY_SHARE`` of the best's score: the shape fits itself in more than one pose (a vase turned about
-   its axis, a box flipped), and the answer may be any of them.
+   its axis, a box flipped), and the answer may be any of them;
+6. say how likely it is wrong: ``p_wrong`` is the calibrated probability that the rotation is more than 5° off,
+   from what the steps above measured (:mod:`rpmnet_jax.pairwise.doubt`), ``likely_wrong`` whether it reaches
+   the shipped model's threshold; it reads the answer and never changes it.
 
 A cloud of more than ``prepare.MAX_POINTS`` (200,000) finite rows is registered and scored on a seeded random
 subset of that many (what Open3D's recipe gets from voxel downsampling first): ``fitness``, ``inlier_rmse`` and
@@ -48,7 +51,7 @@ from rpmnet_jax import config as config_lib, stopwatch
 from rpmnet_jax.geometry import scoring
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import candidates as candidates_lib, global_search, options as options_lib, prepare
-from rpmnet_jax.pairwise import starts as starts_lib
+from rpmnet_jax.pairwise import doubt, starts as starts_lib
 from rpmnet_jax.weights import loading
 
 DEFAULT_RELATIVE_DISTANCE = 0.05
@@ -71,6 +74,8 @@ class Alignment(NamedTuple):
     candidates: tuple  # the distinct refined answers (:class:`Answer`, > AMBIGUITY_DEG apart), best first
     ambiguous: bool  # another distinct answer scores within AMBIGUITY_SHARE of the best (a symmetric shape)
     information: np.ndarray  # (6, 6): point-to-plane information of ``transform`` (see :meth:`covariance`)
+    p_wrong: float = float("nan")  # calibrated probability that the rotation is > 5 deg off (:mod:`doubt`)
+    likely_wrong: bool = False  # p_wrong reaches the shipped model's threshold (0.1, :func:`doubt.load`)
 
     @property
     def stages(self) -> tuple:
@@ -95,6 +100,7 @@ class Answer(NamedTuple):
     fitness: float  # the same share within the full distance
     inlier_rmse: float  # RMS distance of those pairs, caller's units
     init: str  # the start it came from: "local", "classical", "global" or "identity"
+    support: tuple = ()  # the inits of the refined starts that ended within AMBIGUITY_DEG of it (itself included)
 
 
 def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
@@ -183,7 +189,8 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
     where the caller gave none: those the dense samples estimated, and the missing rows)."""
     pair, best = inputs.pair, selection.ranked[0]
     answers = tuple(Answer(pair.to_callers_units(c.transform[:3]), float(c.score[0]), float(c.score[1]),
-                           -float(c.score[2]) * pair.scale, c.init) for c in selection.ranked)
+                           -float(c.score[2]) * pair.scale, c.init, tuple(support))
+                    for c, support in zip(selection.ranked, selection.support or [()] * len(selection.ranked)))
     transform = answers[0].transform
     with clock.stage("score"):
         s = scoring.evaluate_registration(pair.src, pair.ref, transform, inputs.max_distance,
@@ -194,7 +201,9 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
         information = scoring.plane_fit(pair.src, pair.ref, normals, transform, s.correspondences).information
     aligned = se3.apply(transform, np.asarray(src_points, np.float64))  # every row of the caller's
     rows = np.stack([pair.src_rows[s.correspondences[:, 0]], pair.ref_rows[s.correspondences[:, 1]]], 1)
-    return Alignment(transform, aligned, pair.to_callers_units(best.network_transforms), best.confidence,
-                     (pair.src6.shape[1], pair.ref6.shape[1]), s.fitness, s.inlier_rmse, rows, best.converged,
-                     best.num_iterations, inputs.max_distance, best.init, clock.timings(), answers,
-                     selection.ambiguous, information)
+    a = Alignment(transform, aligned, pair.to_callers_units(best.network_transforms), best.confidence,
+                  (pair.src6.shape[1], pair.ref6.shape[1]), s.fitness, s.inlier_rmse, rows, best.converged,
+                  best.num_iterations, inputs.max_distance, best.init, clock.timings(), answers,
+                  selection.ambiguous, information)
+    p, likely = doubt.p_wrong(a)  # 6. how likely the answer is wrong: read off it, never changes it
+    return a._replace(p_wrong=p, likely_wrong=likely)

@@ -94,6 +94,18 @@ POLISH_FACTOR = 3  # the winner, if its refinement stopped on max_iterations, co
 class Selection(NamedTuple):
     ranked: list  # the distinct :class:`Candidate` s, best first
     ambiguous: bool  # :func:`is_ambiguous`
+    support: tuple = ()  # per ranked candidate, :func:`support`: the inits of the refined starts that reached it
+
+
+def support(ranked: list, candidates: list) -> tuple:
+    """For each of the distinct ``ranked`` :class:`Candidate` s, the inits of those of all refined
+    ``candidates`` whose rotation lies within ``AMBIGUITY_DEG`` of it (itself included): how many starts, and
+    of which kind, agree on it."""
+    if not ranked or not candidates:
+        return tuple(() for _ in ranked)
+    rots = np.stack([c.transform[:3, :3] for c in candidates])
+    return tuple(tuple(c.init for c, near in zip(candidates, se3.rotation_angle_deg(rots @ r.transform[:3, :3].T)
+                                                 < AMBIGUITY_DEG) if near) or (r.init,) for r in ranked)
 
 
 def select(candidates: list, dense: prepare.DenseClouds | None, max_dist_unit: float, refine: str,
@@ -105,7 +117,7 @@ def select(candidates: list, dense: prepare.DenseClouds | None, max_dist_unit: f
     ranked = distinct(candidates)
     best = ranked[0]
     if refine != "icp" or best.converged:
-        return Selection(ranked, is_ambiguous(ranked))
+        return Selection(ranked, is_ambiguous(ranked), support(ranked, candidates))
     kwargs = refine_options.icp_kwargs()
     kwargs["max_iterations"] = POLISH_FACTOR * kwargs.get("max_iterations", icp.PAIR.max_iterations)
     r = _icp(dense, best.transform, max_dist_unit, **kwargs)
@@ -113,7 +125,7 @@ def select(candidates: list, dense: prepare.DenseClouds | None, max_dist_unit: f
     if score >= best.score:  # else it slid away (a shape that slides along itself): the shorter run's answer
         ranked[0] = best._replace(transform=r.transform, score=score, converged=r.converged,
                                   num_iterations=best.num_iterations + r.num_iterations)
-    return Selection(ranked, is_ambiguous(ranked))
+    return Selection(ranked, is_ambiguous(ranked), support(ranked, candidates))
 
 
 def _icp(dense: prepare.DenseClouds, start: np.ndarray, max_dist_unit: float, **icp_kwargs) -> icp.Refinement:

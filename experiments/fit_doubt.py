@@ -1,0 +1,147 @@
+"""Fit the likely-wrong model shipped as ``rpmnet_jax/weights/doubt.json`` (:mod:`rpmnet_jax.pairwise.doubt`),
+from pairs of TRAINING files only.
+
+    python -m experiments.fit_doubt collect --minutes 55 [--cache /tmp/rpmnet_doubt/train.jsonl]
+    python -m experiments.fit_doubt fit [--cache ...] [--output rpmnet_jax/weights/doubt.json]
+
+``collect`` runs the default ``align`` on pairs made from the train files of ``--data-roots`` (all categories),
+round-robin over :data:`CONFIGS` (partial and noisy, any orientation and ±45°, the paper's crop at 1,024 points and
+a harder one: 512 points, 50% kept per cloud, where the default is wrong far more often) ten pairs at a time, until
+``--minutes`` are spent; each answer goes to the JSON-lines ``--cache`` with its true error (pairs already there are
+skipped, so it resumes). ``fit`` (needs scikit-learn: ``pip install -e ".[fit]"``) fits a logistic regression on
+the standardised features, maps its out-of-fold scores to probabilities by Platt scaling, picks the
+threshold (the lowest on a 0.05 grid whose out-of-fold flags take at most 2% of the right answers of the paper's
+settings) and writes plain numbers as JSON (no pickle), plus a small parity fixture for the tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+import zlib
+
+import numpy as np
+
+DATA_ROOTS = "../shared/data/modelnet40_real_subset,../shared/data/real_meshes_train"
+# (setting, protocol, rot_mag, num_points, keep, seed): the paper's crop and a harder one
+CONFIGS = (("std", "partial", 180.0, 1024, 0.7, 1), ("hard", "partial", 180.0, 512, 0.5, 2),
+           ("std", "partial", 45.0, 1024, 0.7, 3), ("hard", "partial", 45.0, 512, 0.5, 4),
+           ("std", "noisy", 180.0, 1024, 0.7, 5), ("std", "noisy", 45.0, 1024, 0.7, 6))
+CHUNK = 10
+FIXTURE = os.path.join("tests", "data", "doubt_examples.json")
+
+
+def collect(a) -> None:
+    from rpmnet_jax import data
+    from rpmnet_jax.evaluation import doubt_records
+    from rpmnet_jax.weights import loading
+    params = loading.load_params(None)
+    stop = time.time() + 60 * a.minutes
+    sets = []
+    for root in a.data_roots.split(","):
+        names = data.ModelNet40(root, "train", "partial").class_names
+        for setting, protocol, rot, n, keep, seed in CONFIGS:
+            ds = data.ModelNet40(root, "train", protocol, num_points=n, rot_mag=rot, partial_keep=(keep, keep),
+                                 seed=seed, categories=names)
+            order = np.random.RandomState(seed).permutation(len(ds))
+            sets.append((os.path.basename(os.path.normpath(root)), setting, seed, ds, order))
+    for start in range(0, max(len(s[4]) for s in sets), CHUNK):
+        for name, setting, seed, ds, order in sets:
+            if time.time() > stop:
+                return
+            doubt_records.collect(ds, order[start:start + CHUNK], params, a.cache, progress=False, set=name,
+                                  split="train", seed=seed, setting=setting)
+        rows = doubt_records.read(a.cache)
+        print(json.dumps({"pairs": len(rows), "wrong": int(doubt_records.labels(rows).sum()),
+                          "minutes_left": round((stop - time.time()) / 60, 1)}), flush=True)
+
+
+def fit(a) -> None:
+    from sklearn import linear_model, model_selection, preprocessing
+    from rpmnet_jax.evaluation import calibration, doubt_records
+    from rpmnet_jax.pairwise import doubt
+    rows = doubt_records.read(a.cache)
+    x, y = doubt_records.features(rows), doubt_records.labels(rows)
+    groups = np.array([zlib.crc32(f"{r['set']}/{r['idx']}".encode()) % 10 for r in rows])  # a shape in one fold
+    scaler = preprocessing.StandardScaler().fit(x)
+    scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
+    z = (x - scaler.mean_) / scale
+    lr = linear_model.LogisticRegression(C=a.c, max_iter=2000)
+    oof = np.zeros(len(y))
+    for train, test in model_selection.GroupKFold(5).split(z, y, groups):
+        oof[test] = lr.fit(z[train], y[train]).decision_function(z[test])
+    platt = _platt().fit(oof[:, None], y)  # Platt: a logistic map of the out-of-fold scores
+    p_oof = np.zeros(len(y))  # honest: each fold's probabilities from the map fitted on the other folds' scores
+    for k in np.unique(groups % 5):
+        held = groups % 5 == k
+        p_oof[held] = _platt().fit(oof[~held, None], y[~held]).predict_proba(oof[held, None])[:, 1]
+    lr.fit(z, y)
+    setting = np.array([r["setting"] for r in rows])
+    threshold = a.threshold if a.threshold is not None else _threshold(p_oof, y, setting == "std")
+    spec = {"features": list(doubt.FEATURES), "mean": scaler.mean_.tolist(), "scale": scale.tolist(),
+            "coef": lr.coef_[0].tolist(), "intercept": float(lr.intercept_[0]),
+            "platt_a": float(platt.coef_[0, 0]), "platt_b": float(platt.intercept_[0]),
+            "threshold": threshold, "wrong_deg": doubt.WRONG_DEG,
+            "fitted_on": {"pairs": len(y), "wrong": int(y.sum()), "sources": sorted({r["set"] for r in rows}),
+                          "split": "train", "c": a.c}}
+    with open(a.output, "w") as f:
+        json.dump(spec, f)
+    flagged = p_oof >= threshold
+    for name, m in (("all", np.ones(len(y), bool)), ("std", setting == "std"), ("hard", setting == "hard")):
+        print(json.dumps({"out_of_fold": name, "pairs": int(m.sum()), "wrong": int(y[m].sum()),
+                          "auroc": round(calibration.auroc(p_oof[m], y[m]), 4),
+                          "ece": round(calibration.ece(p_oof[m], y[m]), 4),
+                          "flagged_wrong": round(float(flagged[m & y].mean()), 4) if (m & y).any() else None,
+                          "flagged_right": round(float(flagged[m & ~y].mean()), 4)}))
+    for t in (0.2, 0.3, 0.4, 0.5, 0.6):  # how the bar trades wrong answers caught for right ones flagged
+        f = p_oof >= t
+        print(json.dumps({"threshold": t, "flagged_wrong": round(float(f[y].mean()), 4),
+                          "flagged_right": round(float(f[~y].mean()), 4),
+                          "flagged_right_std": round(float(f[~y & (setting == "std")].mean()), 4)}))
+    print(json.dumps({"coef": dict(zip(doubt.FEATURES, np.round(lr.coef_[0], 3).tolist()))}))
+    pick = np.random.RandomState(0).choice(len(y), size=min(40, len(y)), replace=False)
+    model = doubt.Model(spec)
+    os.makedirs(os.path.dirname(FIXTURE), exist_ok=True)
+    with open(FIXTURE, "w") as f:  # the parity test: sklearn's probabilities of these features
+        json.dump({"features": np.round(x[pick], 6).tolist(),
+                   "p_wrong": platt.predict_proba(lr.decision_function(
+                       (np.round(x[pick], 6) - scaler.mean_) / scale)[:, None])[:, 1].tolist(),
+                   "p_numpy": model.probability(np.round(x[pick], 6)).tolist()}, f)
+
+
+MAX_FLAGGED_RIGHT = 0.02  # the default bar flags at most this share of the right answers of the paper's settings
+
+
+def _platt():
+    from sklearn import linear_model
+    return linear_model.LogisticRegression(C=1e6, max_iter=1000)  # no penalty to speak of: two numbers
+
+
+def _threshold(p_oof, wrong, std) -> float:
+    """The lowest bar on a 0.05 grid whose out-of-fold flags take at most ``MAX_FLAGGED_RIGHT`` of the right
+    answers of the paper's settings (``std``): as many wrong answers caught as that allows."""
+    for t in np.round(np.arange(0.1, 0.951, 0.05), 2):
+        if np.mean(p_oof[~wrong & std] >= t) <= MAX_FLAGGED_RIGHT:
+            return float(t)
+    return 0.95
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("command", choices=("collect", "fit"))
+    p.add_argument("--cache", default="/tmp/rpmnet_doubt/train.jsonl")
+    p.add_argument("--data-roots", default=DATA_ROOTS)
+    p.add_argument("--minutes", type=float, default=55.0)
+    p.add_argument("--output", default=os.path.join("rpmnet_jax", "weights", "doubt.json"))
+    p.add_argument("--c", type=float, default=0.1, help="inverse L2 strength of the logistic regression")
+    p.add_argument("--threshold", type=float, default=None,
+                   help="the likely_wrong bar (default: the lowest flagging <= 2%% of right training answers)")
+    a = p.parse_args(argv)
+    os.makedirs(os.path.dirname(os.path.abspath(a.cache)), exist_ok=True)
+    collect(a) if a.command == "collect" else fit(a)
+
+
+if __name__ == "__main__":
+    main()
