@@ -29,6 +29,17 @@ def _write_scans(tmp_path, clouds, names):
     return paths
 
 
+def _assert_refused(tmp_path, capsys, cases: dict) -> None:
+    """Each ``{message: scan arguments}`` case exits 2 with a one-line error containing ``message`` and writes
+    neither the poses nor the merged cloud."""
+    out, merged = tmp_path / "poses.conf", tmp_path / "m.ply"
+    for message, scans in cases.items():
+        rc = register_scans.main(scans + ["--out-poses", str(out), "--out-merged", str(merged)])
+        err = capsys.readouterr().err
+        assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, (message, err)
+        assert not out.exists() and not merged.exists()
+
+
 def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, capsys):
     rng = np.random.default_rng(0)
     a = rng.normal(size=(300, 3))
@@ -46,11 +57,7 @@ def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, capsys):
         "no point-cloud files": [str(tmp_path / "nothing")],
         "unknown point-cloud format": [str(tmp_path / "a.xyz"), str(tmp_path / "b.obj")],
     }
-    for message, scans in cases.items():
-        rc = register_scans.main(scans + ["--out-poses", str(out), "--out-merged", str(tmp_path / "m.ply")])
-        err = capsys.readouterr().err
-        assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, (message, err)
-        assert not out.exists() and not (tmp_path / "m.ply").exists()
+    _assert_refused(tmp_path, capsys, cases)
     rc = register_scans.main([str(tmp_path / "a.xyz"), str(tmp_path / "sub" / "a.xyz"), "--out-poses",
                               str(tmp_path / "no" / "p.conf")])
     assert rc == 2 and "does not exist" in capsys.readouterr().err
@@ -165,7 +172,6 @@ def test_scanner_files_with_bad_input_exit_2_and_write_nothing(tmp_path, capsys)
     laspy.LasData(laspy.LasHeader(point_format=6, version="1.4")).write(str(tmp_path / "empty.las"))
     e57.write(str(tmp_path / "one.e57"), [columns.Cloud(a)])
     np.savetxt(tmp_path / "rgb.txt", np.c_[a, np.full((300, 3), 9.0)])
-    out = tmp_path / "poses.conf"
     cases = {
         "no points": [str(tmp_path / "a.xyz"), str(tmp_path / "empty.las")],
         "at least two": [str(tmp_path / "one.e57")],
@@ -173,11 +179,7 @@ def test_scanner_files_with_bad_input_exit_2_and_write_nothing(tmp_path, capsys)
         "unknown column name": [str(tmp_path / "a.xyz"), str(tmp_path / "a.xyz"), "--columns", "x,y,w"],
         "not unit normals": [str(tmp_path / "a.xyz"), str(tmp_path / "rgb.txt")],
     }
-    for message, scans in cases.items():
-        rc = register_scans.main(scans + ["--out-poses", str(out), "--out-merged", str(tmp_path / "m.ply")])
-        err = capsys.readouterr().err
-        assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, (message, err)
-        assert not out.exists() and not (tmp_path / "m.ply").exists()
+    _assert_refused(tmp_path, capsys, cases)
 
 
 def test_bad_scheduler_or_cache_exits_2_and_writes_nothing(tmp_path, capsys):
