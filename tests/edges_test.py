@@ -1,6 +1,6 @@
-"""Pairwise edges between scans: ICP from a start a few degrees off recovers a known transform, an edge's measured
-quality tells the truth from a wrong pose, so does the predicted overlap, and batched network calls give each
-pair's own answer."""
+"""Pairwise edges between scans: ICP from a start a few degrees off recovers a known transform, so does FPFH +
+RANSAC at any angle, an edge's measured quality tells the truth from a wrong pose, so does the predicted overlap,
+and batched network calls give each pair's own answer."""
 
 import numpy as np
 import pytest
@@ -46,6 +46,24 @@ def test_icp_edge_recovers_a_known_transform(seed):
     assert np.linalg.norm(e.transform[:3, 3] - truth[:3, 3]) < 0.01
     # the acceptance rule of align_scans (right answers <= 0.06x on the bunny)
     assert e.plane_residual <= rpmnet_jax.ScanOptions().max_plane_residual * MAX_DISTANCE
+
+
+@pytest.mark.parametrize("degrees", [40.0, 150.0])
+def test_classical_edge_recovers_a_known_transform_at_any_angle(degrees):
+    scans, truth = _scans(0)
+    turn = np.eye(4)
+    turn[:3, :3] = rotation_about([0.3, 1.0, -0.2], degrees - 40.0)  # scan 1 turned further: 40° or 150° in all
+    moved = edges.make_scan(scans[1].points @ turn[:3, :3].T, scans[1].normals @ turn[:3, :3].T, 0.3, seed=1)
+    scans = [edges.make_scan(scans[0].points, scans[0].normals, 0.3, seed=0), moved]
+    truth = turn @ truth
+    assert scans[0].features.shape == (len(scans[0].keypoints), 33)  # 1,024 keypoints or all of a small scan
+    e = edges.classical_edge(scans, 0, 1, MAX_DISTANCE, 0.075, np.random.default_rng(0), num_points=256,
+                             max_plane_residual=0.1)
+    assert (e.source, e.target, e.stage) == (0, 1, "classical")
+    assert rotation_error_deg(e.transform[:3, :3], truth[:3, :3]) < 1.0
+    assert np.linalg.norm(e.transform[:3, 3] - truth[:3, 3]) < 0.01
+    without = edges.make_scan(scans[0].points, scans[0].normals)
+    assert without.features is None and without.keypoints is None  # no radius: no features
 
 
 def test_measure_tells_the_truth_from_a_wrong_pose():

@@ -18,6 +18,7 @@ from conftest import ring_scans, rotation_error_deg
 from rpmnet_jax.multiway import pair_cache, pair_engine, scan_alignment
 
 OPTIONS = rpmnet_jax.ScanOptions(num_points=64, num_iters=2, batch_size=2, refine_points=500)  # small: seconds
+NETWORK_OPTIONS = dataclasses.replace(OPTIONS, classical=False)  # every candidate pair through the network
 
 
 def _close(a, b, degrees=0.01, distance=1e-6):
@@ -49,7 +50,7 @@ def test_in_process_imports_no_dask():
 def test_a_pair_s_edge_does_not_depend_on_the_order():
     clouds, _ = ring_scans(4)
     scans, voxel, radius = scan_alignment._prepare_scans(clouds, None, None)
-    settings = pair_engine.Settings(0.05 * radius, 64, 2, 2, 300, 300, 0)
+    settings = pair_engine.Settings(0.05 * radius, 64, 2, 2, 300, 300, 0, 0.075 * radius)
     pairs = [(0, 1), (1, 2), (0, 3), (2, 3)]
     starts = [np.eye(4)] * len(pairs)
     with pair_engine.PairEngine() as engine:
@@ -66,7 +67,7 @@ def test_a_pair_s_edge_does_not_depend_on_the_order():
 def test_cached_pairs_are_reused_and_a_changed_scan_s_pairs_computed_again(tmp_path):
     clouds, _ = ring_scans(4)
     scans, _, radius = scan_alignment._prepare_scans(clouds, None, 0.004)
-    settings = pair_engine.Settings(0.05 * radius, 64, 2, 2, 300, 300, 0)
+    settings = pair_engine.Settings(0.05 * radius, 64, 2, 2, 300, 300, 0, 0.075 * radius)
     pairs, starts = [(0, 1), (1, 2), (0, 3), (2, 3)], [np.eye(4)] * 4
 
     def run(scans):
@@ -90,8 +91,8 @@ def test_cached_pairs_are_reused_and_a_changed_scan_s_pairs_computed_again(tmp_p
 @pytest.mark.slow  # three runs of align_scans, the network compiled once
 def test_the_cache_gives_the_same_poses_and_a_changed_scan_recomputes_its_pairs(tmp_path, random_weights):
     clouds, _ = ring_scans(4)
-    options = dataclasses.replace(OPTIONS, voxel_size=0.004, max_correspondence_distance=0.006,  # not from the scans
-                                  refine_rounds=1)
+    options = dataclasses.replace(NETWORK_OPTIONS, voxel_size=0.004,  # sizes not from the scans
+                                  max_correspondence_distance=0.006, refine_rounds=1)
     first_cache = pair_cache.PairCache(tmp_path / "c")
     first = rpmnet_jax.align_scans(clouds, options=options, checkpoint=random_weights, cache=first_cache)
     files = set(os.listdir(tmp_path / "c"))
@@ -151,20 +152,24 @@ def dask_cluster(tmp_path):
 @pytest.fixture(scope="module")
 def in_process(random_weights):
     clouds, _ = ring_scans(5)
-    return clouds, rpmnet_jax.align_scans(clouds, options=OPTIONS, checkpoint=random_weights)
+    return clouds, {o.classical: rpmnet_jax.align_scans(clouds, options=o, checkpoint=random_weights)
+                    for o in (OPTIONS, NETWORK_OPTIONS)}
 
 
 @pytest.mark.slow  # three processes that start Dask and JAX
-def test_a_dask_scheduler_with_two_workers_gives_the_in_process_poses(dask_cluster, in_process, random_weights):
+@pytest.mark.parametrize("options", [OPTIONS, NETWORK_OPTIONS], ids=["classical", "network"])
+def test_a_dask_scheduler_with_two_workers_gives_the_in_process_poses(dask_cluster, in_process, random_weights,
+                                                                      options):
     address, _ = dask_cluster
-    clouds, expected = in_process
+    clouds, expected = in_process[0], in_process[1][options.classical]
     reports = []
-    result = rpmnet_jax.align_scans(clouds, options=OPTIONS, checkpoint=random_weights, scheduler=address,
+    result = rpmnet_jax.align_scans(clouds, options=options, checkpoint=random_weights, scheduler=address,
                                     progress=lambda *r: reports.append(r))
     _close(result.poses, expected.poses)
     assert [(e.source, e.target) for e in result.edges] == [(e.source, e.target) for e in expected.edges]
-    network = [r for r in reports if r[0] == "network edges"]
-    assert network[-1] == ("network edges", 10, 10) and len(network) >= 2  # chunks of 2 pairs, as they finish
+    stage = "classical edges" if options.classical else "network edges"  # classical: a pair a task; network:
+    ticks = [r for r in reports if r[0] == stage]  # chunks of 2 pairs; reported as they finish
+    assert ticks[-1] == (stage, 10, 10) and len(ticks) >= 2
 
 
 @pytest.mark.slow
@@ -181,17 +186,17 @@ def test_a_worker_killed_mid_run_still_gives_the_same_poses(dask_cluster, in_pro
             workers[1].send_signal(signal.SIGKILL)
             killed.append(done)
 
-    result = rpmnet_jax.align_scans(clouds, options=OPTIONS, checkpoint=random_weights, scheduler=address,
+    result = rpmnet_jax.align_scans(clouds, options=NETWORK_OPTIONS, checkpoint=random_weights, scheduler=address,
                                     progress=progress)
     print(f"worker killed after {killed[0]} of 10 network edges")
     assert killed and workers[1].wait(timeout=10) == -signal.SIGKILL
     with distributed.Client(address, timeout="30s") as client:
         assert len(client.scheduler_info()["workers"]) == 1  # the run finished on the other worker
-    _close(result.poses, expected.poses)
+    _close(result.poses, expected[False].poses)
 
 
 @pytest.mark.slow  # starts two worker processes
 def test_an_embedded_local_cluster_gives_the_in_process_poses(in_process, random_weights):
     clouds, expected = in_process
     result = rpmnet_jax.align_scans(clouds, options=OPTIONS, checkpoint=random_weights, scheduler=2)
-    _close(result.poses, expected.poses)
+    _close(result.poses, expected[True].poses)

@@ -1,4 +1,4 @@
-"""``align_scans``: real bunny scans into one frame, the network edges alone (``refine="none"``), each scan's size
+"""``align_scans``: real bunny scans into one frame, the pair edges alone (``refine="none"``), each scan's size
 from its robust radius, bad options, a placement flagged likely wrong."""
 
 import numpy as np
@@ -36,22 +36,26 @@ def test_align_scans_four_bunny_scans(bunny):
     assert result.left_out == () and result.voxel_size == 0.003
     assert len(result.edges) >= 3 and {e.stage for e in result.edges} == {"refine"}
     ran = [k for k in result.timings if k != "total"]  # the stages that ran, in the pipeline's order
-    assert ran == [s for s in ("prepare", "network", "graph", "global", "refine") if s in ran]
-    assert {"prepare", "network", "refine"} <= set(ran) and list(result.timings)[-1] == "total"
+    assert ran == [s for s in ("prepare", "classical", "network", "graph", "global", "refine") if s in ran]
+    assert {"prepare", "classical", "refine"} <= set(ran) and list(result.timings)[-1] == "total"
     for e in result.edges:
         assert e.information.shape == (6, 6) and 0 < e.fitness <= 1 and e.inlier_rmse > 0
         assert np.all(np.linalg.eigvalsh(0.5 * (e.information + e.information.T)) > 0)
 
 
-def test_align_scans_without_refinement_keeps_the_network_edges():
+@pytest.mark.parametrize("classical", [True, False])
+def test_align_scans_without_refinement_keeps_the_pair_edges(classical):
     clouds, poses = synthetic_scans()
     reports = []
-    result = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none"),
+    result = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none", classical=classical),
                                     progress=lambda *report: reports.append(report))
     errors = pose_errors.pose_errors(result.poses, poses, clouds)
-    assert all(rot < 2.0 for rot, _ in errors), errors  # the network and a short ICP: measured 0.006°
-    assert result.edges and {e.stage for e in result.edges} == {"network"} and "refine" not in result.timings
-    assert reports == [("network edges", k, 3) for k in (1, 2, 3)]  # three scans: three candidate pairs, in turn
+    print(errors)
+    assert all(rot < 2.0 for rot, _ in errors), errors  # a pair method and a short ICP: measured 0.006°
+    stage = "classical" if classical else "network"
+    assert result.edges and {e.stage for e in result.edges} == {stage} and "refine" not in result.timings
+    assert ("network" in result.timings) == (not classical)  # the classical edges connect the three scans
+    assert reports == [(f"{stage} edges", k, 3) for k in (1, 2, 3)]  # three scans: three candidate pairs, in turn
     with pytest.raises(ValueError, match="at least two scans"):
         rpmnet_jax.align_scans(clouds[:1])
 

@@ -11,18 +11,23 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax import registration
 from rpmnet_jax.ops import se3
-from rpmnet_jax.geometry import icp, kdtree, sampling, scoring
+from rpmnet_jax.geometry import feature_ransac, fpfh, icp, kdtree, sampling, scoring
 from rpmnet_jax.pairwise import prepare
+
+FEATURE_POINTS = 1024  # FPFH keypoints per scan (a seeded random subset of its downsampled points)
+FEATURE_NEIGHBOURS = 128  # FPFH's max_nn (Open3D's tutorial recipe)
 
 
 class Scan(NamedTuple):
-    """A scan ready for pairing: voxel-downsampled points, unit normals and their k-d tree."""
+    """A scan ready for pairing: voxel-downsampled points, unit normals, their k-d tree and, for the classical
+    edges, FPFH features of some of its points."""
 
     points: np.ndarray  # (V, 3) caller's units
     normals: np.ndarray  # (V, 3)
     tree: kdtree.KdTree
+    keypoints: np.ndarray | None = None  # (M,) rows of ``points`` that carry features
+    features: np.ndarray | None = None  # (M, 33) their FPFH
 
 
 class Edge(NamedTuple):
@@ -33,13 +38,21 @@ class Edge(NamedTuple):
     inlier_rmse: float  # RMS distance of those pairs, caller's units
     information: np.ndarray  # (6, 6) on ξ = (ω, v) of transform · Exp(ξ)
     plane_residual: float  # median |point-to-plane distance| of those pairs: small where the surfaces coincide
-    stage: str  # "network" (batched network + ICP), "global" (placed against the merged model), "refine" (ICP)
+    stage: str  # "classical" (FPFH + RANSAC + ICP), "network" (batched network + ICP), "global" (placed against
+    # the merged model), "refine" (ICP)
 
 
-def make_scan(points: np.ndarray, normals: np.ndarray) -> Scan:
-    """A :class:`Scan` of ``points, normals (V, 3)``."""
-    points = np.asarray(points, np.float64)
-    return Scan(points, np.asarray(normals, np.float64), kdtree.KdTree(points))
+def make_scan(points: np.ndarray, normals: np.ndarray, feature_radius: float | None = None, seed=0,
+              feature_points: int = FEATURE_POINTS) -> Scan:
+    """A :class:`Scan` of ``points, normals (V, 3)``; with ``feature_radius``, the FPFH (that radius, among the
+    keypoints) of ``feature_points`` keypoints drawn with ``seed`` (an int or a sequence of ints)."""
+    points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+    scan = Scan(points, normals, kdtree.KdTree(points))
+    if feature_radius is None:
+        return scan
+    keypoints = sampling.sample_indices(np.random.default_rng(seed), len(points), feature_points)
+    features = fpfh.fpfh(points[keypoints], normals[keypoints], feature_radius, FEATURE_NEIGHBOURS)
+    return scan._replace(keypoints=keypoints, features=features)
 
 
 def measure(scans, i: int, j: int, transform: np.ndarray, max_distance: float, stage: str,
@@ -68,11 +81,28 @@ def icp_edge(scans, i: int, j: int, start: np.ndarray, max_distance: float, rng:
     return measure(scans, i, j, r.transform, max_distance, stage, min(1.0, min(schedule.scales)) * max_distance)
 
 
+def classical_edge(scans, i: int, j: int, max_distance: float, ransac_distance: float, rng: np.random.Generator, *,
+                   num_points: int, max_plane_residual: float, hypotheses: int = 2) -> Edge | None:
+    """The edge ``i → j`` from FPFH + RANSAC on the scans' keypoints (mutual feature matches, up to
+    ``hypotheses`` distinct answers within ``ransac_distance``), each refined as a network edge's short ICP
+    (``icp.NETWORK_EDGE``, ``num_points``): the fittest of those whose median point-to-plane distance is at most
+    ``max_plane_residual × max_distance``, else the fittest; ``None`` without a hypothesis."""
+    a, b = scans[i], scans[j]
+    corr = feature_ransac.mutual_correspondences(a.features, b.features)
+    hyp = feature_ransac.ransac_hypotheses(a.points[a.keypoints], b.points[b.keypoints], corr, ransac_distance,
+                                           top_k=hypotheses, seed=int(rng.integers(2 ** 31)))
+    found = [icp_edge(scans, i, j, t, max_distance, rng, num_points=num_points, schedule=icp.NETWORK_EDGE,
+                      stage="classical") for t in hyp.transforms]
+    return max(found, default=None, key=lambda e: (e.plane_residual <= max_plane_residual * max_distance, e.fitness))
+
+
 def network_starts(params, scans, pairs, *, cfg, num_points: int, num_iters: int, batch_size: int, seed: int
                    ) -> np.ndarray:
     """``(P, 4, 4)`` network answers (caller's units) for ``pairs (P, 2)``, each started from the identity
     after :func:`rpmnet_jax.pairwise.prepare.prepare_pair` (as :func:`rpmnet_jax.align` prepares a pair); pairs
     of equal sample sizes share batched calls of ``batch_size`` (the last one padded), one compile per size."""
+    from rpmnet_jax import registration  # JAX is imported when the network runs, not for the classical edges
+
     prepared = [prepare.prepare_pair(scans[i].points, scans[j].points, scans[i].normals, scans[j].normals,
                                      num_points=num_points, seed=seed) for i, j in pairs]
     out = np.zeros((len(pairs), 4, 4))

@@ -15,8 +15,11 @@ class ScanOptions:
 
     Sizes (caller's units; ``None``: relative to the median robust scan radius): ``voxel_size`` (default 2%),
     ``max_correspondence_distance`` (the inlier threshold of fitness and overlap, default 5%).
-    Network edges: ``num_points`` per scan and ``num_iters`` network iterations, ``batch_size`` pairs per call;
-    every pair up to ``all_pairs_up_to`` scans, beyond that each scan with its next ``window`` in the given order.
+    Candidate pairs: every pair up to ``all_pairs_up_to`` scans, beyond that each scan with its next ``window``
+    in the given order. Pair edges: ``classical`` (FPFH + RANSAC, then a short ICP) on every candidate pair, the
+    network on the candidate pairs those leave between separate groups of scans (without ``classical``: the
+    network on every candidate pair): ``num_points`` per scan and ``num_iters`` network iterations,
+    ``batch_size`` pairs per call.
     Accepting an edge: fitness ≥ ``min_fitness`` (network and global edges) or ≥ ``min_overlap`` (refinement
     edges), median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (measured on
     the bunny: right answers ≤ 0.06×, wrong ones ≥ 0.19×).
@@ -25,7 +28,8 @@ class ScanOptions:
     ``edge_sigma_fraction`` × the correspondence distance (translation), per axis. Deterministic for a ``seed``.
     """
 
-    num_points: int = 256  # network edges
+    classical: bool = True  # pair edges
+    num_points: int = 256
     num_iters: int = 3
     batch_size: int = 16
     all_pairs_up_to: int = 12

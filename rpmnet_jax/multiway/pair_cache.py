@@ -18,7 +18,7 @@ import numpy as np
 
 from rpmnet_jax.multiway import edges as edges_lib
 
-CACHE_VERSION = 1  # part of every key: a new layout or meaning of the files starts a new set of keys
+CACHE_VERSION = 2  # part of every key: a new layout or meaning of the files starts a new set of keys
 
 
 def digest(*parts) -> str:

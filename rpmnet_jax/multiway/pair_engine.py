@@ -22,7 +22,7 @@ from rpmnet_jax.geometry import icp
 from rpmnet_jax.multiway import edges as edges_lib, pair_cache
 
 CONNECT_TIMEOUT = "20s"  # waiting for a scheduler that does not answer
-NETWORK_TAG = 0  # a pair's generator: (seed, NETWORK_TAG, i, j); refinement round r: (seed, 1 + r, i, j)
+NETWORK_TAG, CLASSICAL_TAG = 0, 1  # a pair's generator: (seed, tag, i, j); refinement round r: (seed, 2 + r, i, j)
 _PARAMS = object()  # stands for the network's parameters among a task's arguments (sent once, not per task)
 
 
@@ -36,6 +36,8 @@ class Settings(NamedTuple):
     network_icp_points: int  # source points of the short ICP after the network
     refine_points: int  # source points of a refinement edge's ICP
     seed: int
+    ransac_distance: float = 0.0  # classical edges: RANSAC's inlier distance
+    max_plane_residual: float = 0.1  # classical edges: a hypothesis is good below this × max_distance
 
 
 def pair_rng(seed: int, tag: int, i: int, j: int) -> np.random.Generator:
@@ -62,10 +64,19 @@ def network_chunk(scans, chunk, todo, params, cfg, settings: Settings, compile_c
     return out
 
 
+def classical_pair(scans, i, j, settings: Settings) -> list:
+    """``[edge]`` of scan ``i`` onto scan ``j`` from FPFH + RANSAC (:func:`~rpmnet_jax.multiway.edges.classical_edge`),
+    ``[]`` without a hypothesis."""
+    s = settings
+    e = edges_lib.classical_edge(scans, i, j, s.max_distance, s.ransac_distance, pair_rng(s.seed, CLASSICAL_TAG, i, j),
+                                 num_points=s.network_icp_points, max_plane_residual=s.max_plane_residual)
+    return [] if e is None else [e]
+
+
 def refine_pair(scans, i, j, start, round_, settings: Settings) -> list:
     """``[edge]``: ICP of scan ``i`` onto scan ``j`` from ``start (4, 4)`` (refinement round ``round_``)."""
     s = settings
-    return [edges_lib.icp_edge(scans, i, j, start, s.max_distance, pair_rng(s.seed, 1 + round_, i, j),
+    return [edges_lib.icp_edge(scans, i, j, start, s.max_distance, pair_rng(s.seed, 2 + round_, i, j),
                                num_points=s.refine_points, schedule=icp.REFINE_EDGE)]
 
 
@@ -146,21 +157,34 @@ class PairEngine:
         self.client = self._cluster = self._scan_futures = self._params_future = None
 
     def bind(self, scans, params, cfg, settings: Settings) -> None:
-        """The scans (:class:`~rpmnet_jax.multiway.edges.Scan`), network and settings of the coming tasks; sent
-        to every worker here, once."""
+        """The scans (:class:`~rpmnet_jax.multiway.edges.Scan`), network (``params``; ``None``: the shipped
+        model, loaded when the network first runs) and settings of the coming tasks; the scans are sent to every
+        worker here, once (the network's parameters when it first runs)."""
         self.scans, self.params, self.cfg, self.settings = scans, params, cfg, settings
         self._digests = [pair_cache.scan_digest(s) for s in scans] if self.cache is not None else None
-        self._params_digest = pair_cache.params_digest(params) if self.cache is not None else None
+        self._params_digest = None
         if self.client is not None:
+            self._scan_futures = self.client.scatter(list(scans), broadcast=True)
+
+    def _bind_network(self) -> None:
+        """Loads the shipped model if no parameters were given, digests them for the cache, sends them to the
+        workers; once."""
+        if self.params is None:
+            from rpmnet_jax.weights import loading
+
+            self.params = loading.load_params(None)
+        if self.cache is not None and self._params_digest is None:
+            self._params_digest = pair_cache.params_digest(self.params)
+        if self.client is not None and self._params_future is None:
             import jax
 
-            self._scan_futures = self.client.scatter(list(scans), broadcast=True)
-            self._params_future = self.client.scatter([jax.tree.map(np.asarray, params)], broadcast=True)[0]
+            self._params_future = self.client.scatter([jax.tree.map(np.asarray, self.params)], broadcast=True)[0]
             self._compile_cache = jax.config.jax_compilation_cache_dir or None
 
     def network_edges(self, pairs, tick=None) -> list:
         """Network edges (network + short ICP) of ``pairs [(i, j), ...]``, in that order; ``tick(done, total)``
         as they finish."""
+        self._bind_network()
         s = self.settings
         key = (self._params_digest, repr(self.cfg), s.num_points, s.num_iters, s.batch_size, s.network_icp_points,
                icp.NETWORK_EDGE, s.max_distance, s.seed)
@@ -175,6 +199,17 @@ class PairEngine:
                 tasks.append((network_chunk, (chunk + chunk[-1:] * (size - len(chunk)), todo, _PARAMS, self.cfg, s),
                               chunk))
         return self._run(tasks, names, found, pairs, tick)
+
+    def classical_edges(self, pairs, tick=None) -> list:
+        """Classical edges (FPFH + RANSAC + short ICP) of ``pairs [(i, j), ...]``, in that order (``None`` for a
+        pair without a RANSAC hypothesis); ``tick(done, total)`` as they finish."""
+        s = self.settings
+        key = (edges_lib.FEATURE_POINTS, edges_lib.FEATURE_NEIGHBOURS, s.network_icp_points, icp.NETWORK_EDGE,
+               s.max_distance, s.ransac_distance, s.max_plane_residual, s.seed)
+        names = {tuple(p): self._name("classical", p, key) for p in pairs}
+        found = self._load(names)
+        tasks = [(classical_pair, (i, j, s), [(i, j)]) for i, j in names if (i, j) not in found]
+        return self._run(tasks, names, found, list(names), tick)
 
     def refine_edges(self, pairs, starts, round_: int, tick=None) -> list:
         """ICP edges of ``pairs [(i, j), ...]`` from ``starts (P, 4, 4)`` in refinement round ``round_``."""
@@ -200,8 +235,9 @@ class PairEngine:
         return {p: e for p, e in found.items() if e is not None}
 
     def _run(self, tasks, names, found, pairs, tick) -> list:
-        """Runs ``tasks [(fn, args, the pairs whose scans it needs)]`` (each returns a list of edges); stores each
-        new edge; returns the edges of ``pairs`` in order."""
+        """Runs ``tasks [(fn, args, the pairs it computes)]`` (each returns a list of edges, one per pair or none
+        for a pair without an answer); stores each new edge; returns the edges of ``pairs`` in order (``None``
+        where there was no answer)."""
         done, total = [len(found)], len(pairs)
         edges = dict(found)
 
@@ -219,24 +255,24 @@ class PairEngine:
         if found and tick is not None:
             tick(done[0], total)
         if self.client is None:
-            for fn, args, _ in tasks:
+            for fn, args, needs in tasks:
                 args = tuple(self.params if a is _PARAMS else a for a in args)
                 if fn is network_chunk:
                     finished(fn(self.scans, *args, tick=advance))
                 else:
                     finished(fn(self.scans, *args))
-                    advance()
+                    advance(len(needs))
         else:
             import distributed
 
-            futures = []
+            futures, computes = [], {}
             for fn, args, needs in tasks:
                 scans = {s: self._scan_futures[s] for s in sorted({s for p in needs for s in p})}
                 args = tuple(self._params_future if a is _PARAMS else a for a in args)
                 extra = {"compile_cache": self._compile_cache} if fn is network_chunk else {}
                 futures.append(self.client.submit(fn, scans, *args, pure=True, **extra))
+                computes[futures[-1].key] = len(args[1]) if fn is network_chunk else len(needs)
             for future in distributed.as_completed(futures):
-                new = future.result()
-                finished(new)
-                advance(len(new))
-        return [edges[tuple(p)] for p in pairs]
+                finished(future.result())
+                advance(computes[future.key])
+        return [edges.get(tuple(p)) for p in pairs]

@@ -42,14 +42,19 @@ def _as_pairs(pairs) -> np.ndarray:
     return np.asarray(pairs, np.int64).reshape(-1, 2)
 
 
-def component(num_nodes: int, pairs, anchor: int) -> np.ndarray:
-    """``(S,)`` bool: the nodes connected to ``anchor`` by the edges ``pairs (E, 2)``."""
+def components(num_nodes: int, pairs) -> np.ndarray:
+    """``(S,)`` int: each node's connected component under the edges ``pairs (E, 2)`` (labels 0, 1, ...)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
     pairs = _as_pairs(pairs)
     adjacency = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(num_nodes, num_nodes))
-    _, labels = connected_components(adjacency, directed=False)
+    return connected_components(adjacency, directed=False)[1]
+
+
+def component(num_nodes: int, pairs, anchor: int) -> np.ndarray:
+    """``(S,)`` bool: the nodes connected to ``anchor`` by the edges ``pairs (E, 2)``."""
+    labels = components(num_nodes, pairs)
     return labels == labels[anchor]
 
 

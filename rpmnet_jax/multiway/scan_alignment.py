@@ -5,11 +5,14 @@ Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
 1. prepare: each scan cleaned, voxel-downsampled (``voxel_size``, default 2% of the median robust scan radius,
    :func:`rpmnet_jax.geometry.cloud.robust_radius`), normals averaged per voxel when given, else estimated (PCA)
    on the downsampled scan;
-2. network edges: every candidate pair (all pairs up to ``all_pairs_up_to`` scans, else each scan with the
-   next ``window`` in the given order, the last ones with the first ones: a ring) goes through the network
-   from the identity as in
-   :func:`rpmnet_jax.align` (``init="local"``), the pairs in batched calls, then a short point-to-plane ICP;
-   pairs with a fitness of at least ``min_fitness`` are edges;
+2. pair edges: every candidate pair (all pairs up to ``all_pairs_up_to`` scans, else each scan with the
+   next ``window`` in the given order, the last ones with the first ones: a ring) is registered by FPFH +
+   RANSAC on 1,024 keypoints per scan (features computed once per scan), then a short point-to-plane ICP; the
+   candidate pairs those edges leave between separate groups of scans go through the network from the identity
+   as in :func:`rpmnet_jax.align` (``init="local"``), in batched calls, then the same short ICP (with
+   ``classical=False``, every candidate pair does). An answer is an edge when its fitness is at least
+   ``min_fitness`` and its median point-to-plane distance at most ``max_plane_residual`` × the correspondence
+   distance. On the 10 bunny scans the classical edges connect every scan and the network does not run;
 3. robust pose graph (:mod:`rpmnet_jax.multiway.pose_graph`: a consensus spanning tree, GTSAM's
    Levenberg–Marquardt with a Cauchy kernel, edges beyond the χ² bound rejected) over those edges; wrong
    edges (a flipped pair) are rejected. The largest component of the kept edges is placed;
@@ -45,8 +48,10 @@ from rpmnet_jax.weights import loading
 
 DEFAULT_RELATIVE_VOXEL = 0.02
 MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
-NETWORK_ICP_POINTS = 1500  # the short ICP after the network (icp.NETWORK_EDGE), source points per candidate pair
-NETWORK_NOISE_SCALE = 3.0  # the network edges' short ICP is coarser: their noise floor is this many times larger
+NETWORK_ICP_POINTS = 1500  # the short ICP of a pair edge (icp.NETWORK_EDGE), source points per candidate pair
+FEATURE_RADIUS = 0.3  # FPFH radius of the classical edges, × the median robust scan radius (Open3D's recipe on
+RANSAC_DISTANCE = 0.075  # unit-sphere clouds: radius 0.3, RANSAC distance 0.075)
+NETWORK_NOISE_SCALE = 3.0  # the pair edges' short ICP is coarser: their noise floor is this many times larger
 
 
 class LeftOutWarning(UserWarning):
@@ -56,11 +61,12 @@ class LeftOutWarning(UserWarning):
 class ScanAlignment(NamedTuple):
     poses: np.ndarray  # (S, 4, 4): scan → the first placed scan's frame (scan 0 unless left out); NaN if left out
     edges: tuple  # Edge of the final pose graph (kept by the robust optimisation)
-    rejected: tuple  # Edge the robust optimisation rejected: among the network edges and the final ones
+    rejected: tuple  # Edge the robust optimisation rejected: among the pair edges and the final ones
     left_out: tuple  # indices of scans that overlap none of the placed ones (poses NaN)
     voxel_size: float  # caller's units
     max_correspondence_distance: float  # caller's units
-    timings: dict  # seconds per stage that ran: prepare, network (with the short ICP), graph, global, refine; total
+    timings: dict  # seconds per stage that ran: prepare, classical, network (each with its short ICP), graph,
+    # global, refine; total
     likely_wrong: tuple = ()  # placed scans whose placement by ``align`` (step 4) was flagged ``likely_wrong``
 
 
@@ -87,7 +93,8 @@ def _prepare_scans(clouds, normals, voxel_size):
         if len(p) < MIN_VOXEL_POINTS:
             raise ValueError(f"scan {i}: {len(p)} points after voxel downsampling at {voxel:.4g}; "
                              "a smaller voxel size is needed")
-        scans.append(edges_lib.make_scan(p, n if n is not None else normals_lib.estimate_normals(p)))
+        scans.append(edges_lib.make_scan(p, n if n is not None else normals_lib.estimate_normals(p),
+                                         FEATURE_RADIUS * float(np.median(radii)), seed=i))
     return scans, voxel, float(np.median(radii))
 
 
@@ -113,13 +120,9 @@ def _solve(num_scans, edges, anchor, noise, seed):
 
 
 def _largest_component(num_scans, edges):
-    pairs = [(e.source, e.target) for e in edges]
-    best = None
-    for s in range(num_scans):
-        nodes = pose_graph.component(num_scans, pairs, s)
-        if best is None or nodes.sum() > best.sum():
-            best = nodes
-    return int(np.argmax(best))
+    """The first scan of the largest connected component of ``edges``."""
+    labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
+    return int(np.argmax(labels == np.argmax(np.bincount(labels))))
 
 
 def _merged(scans, poses, placed, voxel):
@@ -201,17 +204,27 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
                     else alignment.DEFAULT_RELATIVE_DISTANCE * radius)
         noise = (np.radians(o.edge_sigma_deg), o.edge_sigma_fraction * max_dist)
         network_noise = tuple(NETWORK_NOISE_SCALE * x for x in noise)
-        params = params if params is not None else loading.load_params(checkpoint)
+        if params is None and checkpoint is not None:  # a caller's checkpoint is checked (and refused) up front
+            params = loading.load_params(checkpoint)
         cfg = cfg or config_lib.RPMNetConfig()
-        engine.bind(scans, params, cfg, pair_engine.Settings(max_dist, o.num_points, o.num_iters, o.batch_size,
-                                                             NETWORK_ICP_POINTS, o.refine_points, o.seed))
+        engine.bind(scans, params, cfg, pair_engine.Settings(
+            max_dist, o.num_points, o.num_iters, o.batch_size, NETWORK_ICP_POINTS, o.refine_points, o.seed,
+            RANSAC_DISTANCE * radius, o.max_plane_residual))
 
     def good(e, fitness):
-        return e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
+        return e is not None and e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
 
-    with clock.stage("network"):  # 2. every candidate pair from the identity, batched, then a short ICP
-        pairs = _candidate_pairs(num_scans, o.all_pairs_up_to, o.window)
-        edges = [e for e in engine.network_edges(pairs, ticker("network edges")) if good(e, o.min_fitness)]
+    pairs, edges, weak = _candidate_pairs(num_scans, o.all_pairs_up_to, o.window), [], None
+    if o.classical:
+        with clock.stage("classical"):  # 2. every candidate pair: FPFH + RANSAC, a short ICP
+            found = engine.classical_edges(pairs, ticker("classical edges"))
+            edges = [e for e in found if good(e, o.min_fitness)]
+        labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
+        weak = [p for p, e in zip(pairs, found) if not good(e, o.min_fitness) and labels[p[0]] != labels[p[1]]]
+    weak = pairs if weak is None else weak
+    if weak:
+        with clock.stage("network"):  # the pairs left between components: the network from the identity
+            edges += [e for e in engine.network_edges(weak, ticker("network edges")) if good(e, o.min_fitness)]
 
     rejected = []  # 3. robust pose graph over them: the largest consistent component is placed
     poses = np.full((num_scans, 4, 4), np.nan)
@@ -225,13 +238,14 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     pending = [s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0])]
     if pending:  # 4. the other scans: global registration onto the merged placed scans
         with clock.stage("global"):
+            params = params if params is not None else loading.load_params(None)
             poses, global_edges, pending, doubtful = _place_remaining(
                 scans, poses, params, cfg, voxel, max_dist, seed=o.seed, tick=ticker("placing the other scans"),
                 accept=lambda fitness, residual: (fitness >= o.min_fitness
                                                   and residual <= o.max_plane_residual * max_dist))
             global_edges = [e for e in global_edges if good(e, o.min_overlap)]
 
-    # 5. refinement rounds (or, without, one graph of the network and placement edges, at the network's noise)
+    # 5. refinement rounds (or, without, one graph of the pair and placement edges, at the pair edges' noise)
     placed = [s for s in range(num_scans) if np.isfinite(poses[s, 0, 0])]
     final_edges, final_rejected = edges + global_edges, []
     for r in range(o.refine_rounds if o.refine == "icp" and len(placed) > 1 else 0):
