@@ -14,18 +14,22 @@ def _edge(rng):
     return edges_lib.Edge(2, 5, rng.normal(size=(4, 4)), 0.7312345678901234, 1.1e-4, info @ info.T, 3.3e-5, "network")
 
 
-def test_an_edge_comes_back_bit_for_bit(tmp_path):
+def test_edges_come_back_bit_for_bit(tmp_path):
     cache = pair_cache.PairCache(tmp_path / "c")
-    edge = _edge(np.random.default_rng(0))
+    rng = np.random.default_rng(0)
+    edges = [_edge(rng), _edge(rng)._replace(stage="classical", fitness=0.5)]  # a pair's two answers
     assert cache.load("network-2-5-x") is None and not (tmp_path / "c").exists()  # made on the first write
-    cache.store("network-2-5-x", edge)
+    cache.store("network-2-5-x", edges)
+    cache.store("classical-0-1-x", [])  # a pair without an answer is a result too
     back = pair_cache.PairCache(tmp_path / "c").load("network-2-5-x")
-    assert back.source == 2 and back.target == 5 and back.stage == "network"
-    for name in ("transform", "information"):
-        assert np.array_equal(getattr(back, name), getattr(edge, name))
-    assert (back.fitness, back.inlier_rmse, back.plane_residual) == (edge.fitness, edge.inlier_rmse,
-                                                                     edge.plane_residual)
-    assert os.listdir(tmp_path / "c") == ["network-2-5-x.npz"] and cache.written == 1  # no temporary file left
+    assert len(back) == 2 and pair_cache.PairCache(tmp_path / "c").load("classical-0-1-x") == []
+    for b, edge in zip(back, edges):
+        assert (b.source, b.target, b.stage) == (edge.source, edge.target, edge.stage)
+        for name in ("transform", "information"):
+            assert np.array_equal(getattr(b, name), getattr(edge, name))
+        assert (b.fitness, b.inlier_rmse, b.plane_residual) == (edge.fitness, edge.inlier_rmse, edge.plane_residual)
+    assert sorted(os.listdir(tmp_path / "c")) == ["classical-0-1-x.npz", "network-2-5-x.npz"]  # no temporary file
+    assert cache.written == 2
 
 
 def test_an_unreadable_file_is_a_miss_not_an_error(tmp_path):

@@ -92,7 +92,7 @@ def test_cached_pairs_are_reused_and_a_changed_scan_s_pairs_computed_again(tmp_p
 def test_the_cache_gives_the_same_poses_and_a_changed_scan_recomputes_its_pairs(tmp_path, random_weights):
     clouds, _ = ring_scans(4)
     options = dataclasses.replace(NETWORK_OPTIONS, voxel_size=0.004,  # sizes not from the scans
-                                  max_correspondence_distance=0.006, refine_rounds=1)
+                                  max_correspondence_distance=0.006, refine="icp", refine_rounds=1)
     first_cache = pair_cache.PairCache(tmp_path / "c")
     first = rpmnet_jax.align_scans(clouds, options=options, checkpoint=random_weights, cache=first_cache)
     files = set(os.listdir(tmp_path / "c"))

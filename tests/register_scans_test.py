@@ -205,7 +205,7 @@ def test_a_sigkilled_run_resumes_from_its_cache_with_the_same_poses(tmp_path, ra
     clouds, _ = ring_scans(6)
     paths = _write_scans(tmp_path, clouds, [f"scan{k}" for k in range(6)])
     cache = tmp_path / "cache"
-    command = _CLI + paths + ["--checkpoint", random_weights, "--cache", str(cache)]
+    command = _CLI + paths + ["--checkpoint", random_weights, "--cache", str(cache), "--refine", "icp"]
     run = subprocess.Popen(command + ["--out-poses", str(tmp_path / "killed.conf")], stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 600
@@ -213,7 +213,7 @@ def test_a_sigkilled_run_resumes_from_its_cache_with_the_same_poses(tmp_path, ra
                                                                   for f in os.listdir(cache))):
         assert run.poll() is None, run.communicate()[1][-2000:]
         time.sleep(0.01)
-    run.send_signal(signal.SIGKILL)  # in the first refinement round: the network edges are all on disk
+    run.send_signal(signal.SIGKILL)  # in the first refinement round: the pair edges are all on disk
     assert run.wait(timeout=30) == -signal.SIGKILL
     assert not (tmp_path / "killed.conf").exists()  # killed mid-run
     finished = {f: os.stat(cache / f).st_mtime_ns for f in os.listdir(cache) if f.endswith(".npz")}
@@ -228,7 +228,7 @@ def test_a_sigkilled_run_resumes_from_its_cache_with_the_same_poses(tmp_path, ra
     assert all(os.stat(cache / f).st_mtime_ns == t for f, t in finished.items())
 
     fresh = subprocess.run(_CLI + paths + ["--checkpoint", random_weights, "--out-poses", str(tmp_path / "fresh.conf"),
-                                           "--scheduler", "2"],  # from scratch, on two worker processes
+                                           "--refine", "icp", "--scheduler", "2"],  # from scratch, on two workers
                            capture_output=True, text=True, timeout=600)
     assert fresh.returncode == 0, fresh.stderr[-2000:]
     a, b = scan_poses.read_poses(str(tmp_path / "resumed.conf")), scan_poses.read_poses(str(tmp_path / "fresh.conf"))

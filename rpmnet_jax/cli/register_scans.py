@@ -47,8 +47,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="registration voxel size in the scans' units (default: 2%% of the median scan radius)")
     p.add_argument("--max-correspondence-distance", type=float, default=None,
                    help="inlier threshold in the scans' units (default: 5%% of the median scan radius)")
-    p.add_argument("--refine", choices=("icp", "none"), default="icp",
-                   help="final ICP rounds over every overlapping pair (default), or none")
+    p.add_argument("--refine", choices=("joint", "icp", "none"), default="joint",
+                   help="the final refinement over every overlapping pair: all poses together on the pairs' points "
+                        "(joint, default), rounds of pairwise ICP edges in a pose graph (icp), or none")
     p.add_argument("--seed", type=int, default=0, help="seed of the samplings")
     p.add_argument("--scheduler", default=None,
                    help="run the pair registrations on Dask: 'local' (or a worker count) for worker processes on "

@@ -81,19 +81,28 @@ def icp_edge(scans, i: int, j: int, start: np.ndarray, max_distance: float, rng:
     return measure(scans, i, j, r.transform, max_distance, stage, min(1.0, min(schedule.scales)) * max_distance)
 
 
-def classical_edge(scans, i: int, j: int, max_distance: float, ransac_distance: float, rng: np.random.Generator, *,
-                   num_points: int, max_plane_residual: float, hypotheses: int = 2) -> Edge | None:
-    """The edge ``i → j`` from FPFH + RANSAC on the scans' keypoints (mutual feature matches, up to
-    ``hypotheses`` distinct answers within ``ransac_distance``), each refined as a network edge's short ICP
-    (``icp.NETWORK_EDGE``, ``num_points``): the fittest of those whose median point-to-plane distance is at most
-    ``max_plane_residual × max_distance``, else the fittest; ``None`` without a hypothesis."""
+DISTINCT_DEG = 10.0  # a pair's answers whose rotations lie closer than this are one answer (the fitter one kept)
+
+
+def classical_edges(scans, i: int, j: int, max_distance: float, ransac_distance: float, rng: np.random.Generator, *,
+                    num_points: int, max_plane_residual: float, hypotheses: int = 2) -> list:
+    """The distinct answers ``[Edge, ...]`` of ``i → j`` from FPFH + RANSAC on the scans' keypoints (mutual
+    feature matches, up to ``hypotheses`` distinct transforms within ``ransac_distance``), each refined as a
+    network edge's short ICP (``icp.NETWORK_EDGE``, ``num_points``), best first: those whose median
+    point-to-plane distance is at most ``max_plane_residual × max_distance`` before the others, then by
+    fitness; a symmetric pair keeps its flip beside the truth, for the pose graph to choose by consistency."""
     a, b = scans[i], scans[j]
     corr = feature_ransac.mutual_correspondences(a.features, b.features)
     hyp = feature_ransac.ransac_hypotheses(a.points[a.keypoints], b.points[b.keypoints], corr, ransac_distance,
                                            top_k=hypotheses, seed=int(rng.integers(2 ** 31)))
-    found = [icp_edge(scans, i, j, t, max_distance, rng, num_points=num_points, schedule=icp.NETWORK_EDGE,
-                      stage="classical") for t in hyp.transforms]
-    return max(found, default=None, key=lambda e: (e.plane_residual <= max_plane_residual * max_distance, e.fitness))
+    starts = [np.eye(4)] + list(hyp.transforms)  # the scans as they lie too: scans that come in roughly one frame
+    found = sorted((icp_edge(scans, i, j, t, max_distance, rng, num_points=num_points, schedule=icp.NETWORK_EDGE,
+                             stage="classical") for t in starts),
+                   key=lambda e: (e.plane_residual <= max_plane_residual * max_distance, e.fitness), reverse=True)
+    if not found:
+        return []
+    keep = se3.distinct_rotations(np.stack([e.transform[:3, :3] for e in found]), DISTINCT_DEG)
+    return [found[k] for k in keep]
 
 
 def network_starts(params, scans, pairs, *, cfg, num_points: int, num_iters: int, batch_size: int, seed: int

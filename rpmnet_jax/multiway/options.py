@@ -6,7 +6,7 @@ import dataclasses
 
 from rpmnet_jax import input_checks as checks
 
-REFINES = ("icp", "none")
+REFINES = ("icp", "joint", "none")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,9 +23,12 @@ class ScanOptions:
     Accepting an edge: fitness ≥ ``min_fitness`` (network and global edges) or ≥ ``min_overlap`` (refinement
     edges), median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (measured on
     the bunny: right answers ≤ 0.06×, wrong ones ≥ 0.19×).
-    Refinement (``refine="icp"``): ``refine_rounds`` rounds of ICP edges on up to ``refine_points`` points for
-    every pair predicted to overlap by ``min_overlap``. Edge noise floor: ``edge_sigma_deg`` (rotation) and
-    ``edge_sigma_fraction`` × the correspondence distance (translation), per axis. Deterministic for a ``seed``.
+    Refinement: ``refine="joint"`` (default) moves all poses together on the points of every pair predicted to
+    overlap by ``min_overlap`` (1,000 points per scan of a pair; multi-view point-to-plane,
+    :mod:`rpmnet_jax.multiway.joint_refine`); ``refine="icp"``: ``refine_rounds`` rounds of pairwise ICP edges
+    on up to ``refine_points`` points for those pairs, each round a robust pose graph. Edge noise floor:
+    ``edge_sigma_deg`` (rotation) and ``edge_sigma_fraction`` × the correspondence distance (translation), per
+    axis. Deterministic for a ``seed``.
     """
 
     classical: bool = True  # pair edges
@@ -39,7 +42,7 @@ class ScanOptions:
     min_fitness: float = 0.3  # accepting an edge
     min_overlap: float = 0.2
     max_plane_residual: float = 0.1
-    refine: str = "icp"  # refinement
+    refine: str = "joint"  # refinement
     refine_rounds: int = 2
     refine_points: int = 3000
     edge_sigma_deg: float = 0.25  # edge noise floor

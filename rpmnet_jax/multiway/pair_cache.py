@@ -18,7 +18,7 @@ import numpy as np
 
 from rpmnet_jax.multiway import edges as edges_lib
 
-CACHE_VERSION = 2  # part of every key: a new layout or meaning of the files starts a new set of keys
+CACHE_VERSION = 3  # part of every key: a new layout or meaning of the files starts a new set of keys
 
 
 def digest(*parts) -> str:
@@ -70,28 +70,32 @@ class PairCache:
     def path(self, name: str) -> str:
         return os.path.join(self.folder, f"{name}.npz")
 
-    def load(self, name: str) -> edges_lib.Edge | None:
-        """The edge stored under ``name``, or ``None`` when there is none (or it cannot be read)."""
+    def load(self, name: str) -> list | None:
+        """The edges stored under ``name`` (a pair's answers: one, several or none), or ``None`` when there is no
+        such file (or it cannot be read)."""
         try:
             with np.load(self.path(name), allow_pickle=False) as f:
-                edge = edges_lib.Edge(int(f["source"]), int(f["target"]), f["transform"].astype(np.float64),
-                                      float(f["fitness"]), float(f["inlier_rmse"]),
-                                      f["information"].astype(np.float64), float(f["plane_residual"]),
-                                      str(f["stage"]))
-        except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+                edges = [edges_lib.Edge(int(f["source"][k]), int(f["target"][k]), f["transform"][k].astype(np.float64),
+                                        float(f["fitness"][k]), float(f["inlier_rmse"][k]),
+                                        f["information"][k].astype(np.float64), float(f["plane_residual"][k]),
+                                        str(f["stage"][k])) for k in range(len(f["fitness"]))]
+        except (OSError, KeyError, ValueError, IndexError, zipfile.BadZipFile):
             return None
         self.reused += 1
-        return edge
+        return edges
 
-    def store(self, name: str, edge: edges_lib.Edge) -> None:
-        """Writes ``edge`` under ``name`` atomically: a reader sees the whole file or none."""
+    def store(self, name: str, edges: list) -> None:
+        """Writes ``edges`` (a pair's answers, possibly none) under ``name`` atomically: a reader sees the whole
+        file or none."""
         os.makedirs(self.folder, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=self.folder)
+        field = lambda k, dtype=np.float64: np.array([getattr(e, k) for e in edges], dtype)
         try:
             with os.fdopen(fd, "wb") as f:
-                np.savez(f, source=edge.source, target=edge.target, transform=edge.transform, fitness=edge.fitness,
-                         inlier_rmse=edge.inlier_rmse, information=edge.information,
-                         plane_residual=edge.plane_residual, stage=np.str_(edge.stage))
+                np.savez(f, source=field("source", np.int64), target=field("target", np.int64),
+                         transform=field("transform").reshape(-1, 4, 4), fitness=field("fitness"),
+                         inlier_rmse=field("inlier_rmse"), information=field("information").reshape(-1, 6, 6),
+                         plane_residual=field("plane_residual"), stage=field("stage", np.str_))
             os.replace(tmp, self.path(name))
         except BaseException:
             if os.path.exists(tmp):

@@ -47,8 +47,8 @@ def pair_rng(seed: int, tag: int, i: int, j: int) -> np.random.Generator:
 
 def network_chunk(scans, chunk, todo, params, cfg, settings: Settings, compile_cache=None, tick=None) -> list:
     """Network answers for the pairs ``chunk [(i, j), ...]`` in one batched call (a pair may repeat: padding),
-    then the short ICP of those in ``todo``: their :class:`~rpmnet_jax.multiway.edges.Edge` in chunk order
-    (``tick()`` after each)."""
+    then the short ICP of those in ``todo``: ``[((i, j), [edge]), ...]`` in chunk order (``tick()`` after
+    each)."""
     _use_compile_cache(compile_cache)
     s = settings
     starts = edges_lib.network_starts(params, scans, chunk, cfg=cfg, num_points=s.num_points,
@@ -56,28 +56,29 @@ def network_chunk(scans, chunk, todo, params, cfg, settings: Settings, compile_c
     out = []
     for (i, j), start in dict(zip(chunk, starts)).items():
         if (i, j) in todo:
-            out.append(edges_lib.icp_edge(scans, i, j, start, s.max_distance, pair_rng(s.seed, NETWORK_TAG, i, j),
-                                          num_points=s.network_icp_points, schedule=icp.NETWORK_EDGE,
-                                          stage="network"))
+            out.append(((i, j), [edges_lib.icp_edge(scans, i, j, start, s.max_distance,
+                                                    pair_rng(s.seed, NETWORK_TAG, i, j), num_points=s.network_icp_points,
+                                                    schedule=icp.NETWORK_EDGE, stage="network")]))
             if tick is not None:
                 tick()
     return out
 
 
 def classical_pair(scans, i, j, settings: Settings) -> list:
-    """``[edge]`` of scan ``i`` onto scan ``j`` from FPFH + RANSAC (:func:`~rpmnet_jax.multiway.edges.classical_edge`),
-    ``[]`` without a hypothesis."""
+    """``[((i, j), edges)]``: the answers of scan ``i`` onto scan ``j`` from FPFH + RANSAC
+    (:func:`~rpmnet_jax.multiway.edges.classical_edges`)."""
     s = settings
-    e = edges_lib.classical_edge(scans, i, j, s.max_distance, s.ransac_distance, pair_rng(s.seed, CLASSICAL_TAG, i, j),
-                                 num_points=s.network_icp_points, max_plane_residual=s.max_plane_residual)
-    return [] if e is None else [e]
+    return [((i, j), edges_lib.classical_edges(scans, i, j, s.max_distance, s.ransac_distance,
+                                               pair_rng(s.seed, CLASSICAL_TAG, i, j), num_points=s.network_icp_points,
+                                               max_plane_residual=s.max_plane_residual))]
 
 
 def refine_pair(scans, i, j, start, round_, settings: Settings) -> list:
-    """``[edge]``: ICP of scan ``i`` onto scan ``j`` from ``start (4, 4)`` (refinement round ``round_``)."""
+    """``[((i, j), [edge])]``: ICP of scan ``i`` onto scan ``j`` from ``start (4, 4)`` (refinement round
+    ``round_``)."""
     s = settings
-    return [edges_lib.icp_edge(scans, i, j, start, s.max_distance, pair_rng(s.seed, 2 + round_, i, j),
-                               num_points=s.refine_points, schedule=icp.REFINE_EDGE)]
+    return [((i, j), [edges_lib.icp_edge(scans, i, j, start, s.max_distance, pair_rng(s.seed, 2 + round_, i, j),
+                                         num_points=s.refine_points, schedule=icp.REFINE_EDGE)])]
 
 
 def _use_compile_cache(folder) -> None:
@@ -182,8 +183,8 @@ class PairEngine:
             self._compile_cache = jax.config.jax_compilation_cache_dir or None
 
     def network_edges(self, pairs, tick=None) -> list:
-        """Network edges (network + short ICP) of ``pairs [(i, j), ...]``, in that order; ``tick(done, total)``
-        as they finish."""
+        """Network edges (network + short ICP) of ``pairs [(i, j), ...]``, one per pair, in that order;
+        ``tick(done, total)`` as they finish."""
         self._bind_network()
         s = self.settings
         key = (self._params_digest, repr(self.cfg), s.num_points, s.num_iters, s.batch_size, s.network_icp_points,
@@ -198,11 +199,11 @@ class PairEngine:
             if todo:  # the last chunk padded with its last pair
                 tasks.append((network_chunk, (chunk + chunk[-1:] * (size - len(chunk)), todo, _PARAMS, self.cfg, s),
                               chunk))
-        return self._run(tasks, names, found, pairs, tick)
+        return [answers[0] for answers in self._run(tasks, names, found, pairs, tick)]
 
     def classical_edges(self, pairs, tick=None) -> list:
-        """Classical edges (FPFH + RANSAC + short ICP) of ``pairs [(i, j), ...]``, in that order (``None`` for a
-        pair without a RANSAC hypothesis); ``tick(done, total)`` as they finish."""
+        """Classical edges (FPFH + RANSAC + short ICP) of ``pairs [(i, j), ...]``: per pair, in that order, the
+        list of its distinct answers (possibly empty); ``tick(done, total)`` as they finish."""
         s = self.settings
         key = (edges_lib.FEATURE_POINTS, edges_lib.FEATURE_NEIGHBOURS, s.network_icp_points, icp.NETWORK_EDGE,
                s.max_distance, s.ransac_distance, s.max_plane_residual, s.seed)
@@ -220,7 +221,7 @@ class PairEngine:
         found = self._load(names)
         tasks = [(refine_pair, (i, j, starts[(i, j)], round_, s), [(i, j)])
                  for i, j in starts if (i, j) not in found]
-        return self._run(tasks, names, found, list(starts), tick)
+        return [answers[0] for answers in self._run(tasks, names, found, list(starts), tick)]
 
     def _name(self, stage, pair, key):
         if self.cache is None:
@@ -235,17 +236,16 @@ class PairEngine:
         return {p: e for p, e in found.items() if e is not None}
 
     def _run(self, tasks, names, found, pairs, tick) -> list:
-        """Runs ``tasks [(fn, args, the pairs it computes)]`` (each returns a list of edges, one per pair or none
-        for a pair without an answer); stores each new edge; returns the edges of ``pairs`` in order (``None``
-        where there was no answer)."""
+        """Runs ``tasks [(fn, args, the pairs whose scans it needs)]`` (each returns ``[((i, j), [edge, ...]),
+        ...]``); stores each new pair's edges; returns the edge lists of ``pairs`` in order."""
         done, total = [len(found)], len(pairs)
         edges = dict(found)
 
         def finished(new):
-            for e in new:
-                edges[(e.source, e.target)] = e
+            for pair, answers in new:
+                edges[pair] = answers
                 if self.cache is not None:
-                    self.cache.store(names[(e.source, e.target)], e)
+                    self.cache.store(names[pair], answers)
 
         def advance(n=1):
             done[0] += n
@@ -255,24 +255,24 @@ class PairEngine:
         if found and tick is not None:
             tick(done[0], total)
         if self.client is None:
-            for fn, args, needs in tasks:
+            for fn, args, _ in tasks:
                 args = tuple(self.params if a is _PARAMS else a for a in args)
                 if fn is network_chunk:
                     finished(fn(self.scans, *args, tick=advance))
                 else:
                     finished(fn(self.scans, *args))
-                    advance(len(needs))
+                    advance()
         else:
             import distributed
 
-            futures, computes = [], {}
+            futures = []
             for fn, args, needs in tasks:
                 scans = {s: self._scan_futures[s] for s in sorted({s for p in needs for s in p})}
                 args = tuple(self._params_future if a is _PARAMS else a for a in args)
                 extra = {"compile_cache": self._compile_cache} if fn is network_chunk else {}
                 futures.append(self.client.submit(fn, scans, *args, pure=True, **extra))
-                computes[futures[-1].key] = len(args[1]) if fn is network_chunk else len(needs)
             for future in distributed.as_completed(futures):
-                finished(future.result())
-                advance(computes[future.key])
-        return [edges.get(tuple(p)) for p in pairs]
+                new = future.result()
+                finished(new)
+                advance(len(new))
+        return [edges[tuple(p)] for p in pairs]

@@ -21,9 +21,11 @@ Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
    fitness is at least ``min_fitness``, else left out with a warning (it overlaps nothing); a placement
    ``align`` flags ``likely_wrong`` (:mod:`rpmnet_jax.pairwise.doubt`) is reported in ``likely_wrong`` (the
    robust graph, not the flag, decides which edges stay);
-5. refine (``refine="icp"``, ``refine_rounds`` times): every pair whose predicted overlap is at least
-   ``min_overlap`` gets an ICP edge from the current poses on up to ``refine_points`` points; the robust pose
-   graph of those edges gives the poses.
+5. refine: every placed pair predicted to overlap by ``min_overlap`` at the current poses takes part:
+   ``refine="joint"`` (default) moves all poses together on their points (multi-view point-to-plane,
+   :mod:`rpmnet_jax.multiway.joint_refine`), then measures each pair as an edge; ``refine="icp"`` gives each
+   an ICP edge from the current poses on up to ``refine_points`` points, and the robust pose graph of those
+   edges gives the poses (``refine_rounds`` times).
 
 Edge noise: an edge's covariance is the inverse of its point-to-plane information plus a floor of
 ``edge_sigma_deg`` (rotation) and ``edge_sigma_fraction × max_correspondence_distance`` (translation) per
@@ -41,7 +43,7 @@ import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
 from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, scoring
-from rpmnet_jax.multiway import edges as edges_lib, options as options_lib, pair_engine, pose_graph
+from rpmnet_jax.multiway import edges as edges_lib, joint_refine, options as options_lib, pair_engine, pose_graph
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment
 from rpmnet_jax.weights import loading
@@ -160,16 +162,33 @@ def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, t
     return poses, edges, pending, doubtful
 
 
+def _overlapping_pairs(scans, poses, placed, max_dist, min_overlap) -> list:
+    """``[(i, j), ...]``, ``i < j``: the placed pairs predicted to overlap by ``min_overlap`` at ``poses`` (the
+    pairs whose bounding spheres lie apart are not looked at)."""
+    centres = {s: se3.apply(poses[s], scans[s].points.mean(axis=0)[None])[0] for s in placed}
+    radii = {s: float(np.max(np.linalg.norm(scans[s].points - scans[s].points.mean(axis=0), axis=1)))
+             for s in placed}
+    return [(i, j) for i, j in itertools.combinations(sorted(placed), 2)
+            if np.linalg.norm(centres[i] - centres[j]) <= radii[i] + radii[j] + max_dist
+            and edges_lib.predicted_overlap(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist) >= min_overlap]
+
+
 def _refine_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_, tick):
     """Step 5, one round: an ICP edge from the current poses for every placed pair predicted to overlap, run by
     ``engine`` (``tick(done, total)`` as they finish)."""
-    pairs, starts = [], []
-    for i, j in itertools.combinations(sorted(placed), 2):
-        predicted = np.linalg.inv(poses[j]) @ poses[i]
-        if edges_lib.predicted_overlap(scans, i, j, predicted, max_dist) >= min_overlap:
-            pairs.append((i, j))
-            starts.append(predicted)
+    pairs = _overlapping_pairs(scans, poses, placed, max_dist, min_overlap)
+    starts = [np.linalg.inv(poses[j]) @ poses[i] for i, j in pairs]
     return [e for e in engine.refine_edges(pairs, starts, round_, tick) if keep(e)]
+
+
+def _refine_jointly(scans, poses, placed, max_dist, o, keep):
+    """Step 5 with ``refine="joint"``: the overlapping pairs' points refine all poses together
+    (:mod:`rpmnet_jax.multiway.joint_refine`); then each pair measured: (poses, kept edges, the other edges)."""
+    pairs = _overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap)
+    poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed).poses
+    measured = [edges_lib.measure(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist, "joint")
+                for i, j in pairs]
+    return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]
 
 
 def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = options_lib.ScanOptions(), params=None,
@@ -212,15 +231,16 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
             RANSAC_DISTANCE * radius, o.max_plane_residual))
 
     def good(e, fitness):
-        return e is not None and e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
+        return e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
 
     pairs, edges, weak = _candidate_pairs(num_scans, o.all_pairs_up_to, o.window), [], None
     if o.classical:
         with clock.stage("classical"):  # 2. every candidate pair: FPFH + RANSAC, a short ICP
-            found = engine.classical_edges(pairs, ticker("classical edges"))
-            edges = [e for e in found if good(e, o.min_fitness)]
+            found = [[e for e in answers if good(e, o.min_fitness)] for answers in engine.classical_edges(
+                pairs, ticker("classical edges"))]
+            edges = [e for answers in found for e in answers]  # a symmetric pair's answers: the graph chooses
         labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
-        weak = [p for p, e in zip(pairs, found) if not good(e, o.min_fitness) and labels[p[0]] != labels[p[1]]]
+        weak = [p for p, answers in zip(pairs, found) if not answers and labels[p[0]] != labels[p[1]]]
     weak = pairs if weak is None else weak
     if weak:
         with clock.stage("network"):  # the pairs left between components: the network from the identity
@@ -260,6 +280,10 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
             warnings.warn(f"scans {dropped}: no edge consistent with the others after refinement; left out",
                           LeftOutWarning, stacklevel=3)
             placed = [s for s in placed if s not in dropped]
+    if o.refine == "joint" and len(placed) > 1:
+        with clock.stage("refine"):
+            poses, final_edges, final_rejected = _refine_jointly(scans, poses, placed, max_dist, o,
+                                                                 lambda e: good(e, o.min_overlap))
     if o.refine == "none" and global_edges:
         with clock.stage("graph"):
             poses, final_edges, final_rejected = _solve(num_scans, final_edges, min(placed), network_noise, o.seed)

@@ -1,0 +1,123 @@
+"""Joint multi-view point-to-plane refinement of scan poses: every overlapping pair's points on the other scan's
+tangent planes, all poses solved together (Gauss–Newton with Tukey weights, one scan held fixed), as multi-view
+ICP does (Pulli, "Multiview registration for large data sets", 3DIM 1999). A pose graph of pairwise ICP edges
+(Open3D's multiway recipe, and :func:`rpmnet_jax.align_scans`' ``refine="icp"``) keeps only each pair's answer
+and a covariance; here every correspondence of every pair pulls on both poses at once.
+
+Poses map each scan into a common frame, ``(S, 4, 4)``. A pose is moved by a twist ``(ω, v)`` about the
+centre of the placed scans: ``x ↦ c + Exp(ω)(x − c) + v``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from rpmnet_jax.geometry import icp, sampling
+from rpmnet_jax.ops import se3
+
+GATES = (1.0, 0.5, 0.25)  # the stages' correspondence gates, × max_distance (Tukey's scale at each); measured on
+# 12 simulated bunny range scans (0.5 mm noise, 0.25x = 1.5 mm): worst scan 0.093 deg / 0.15 mm, against 0.26 deg /
+# 0.31 mm with (2, 1, 0.5) and 0.15 deg / 0.63 mm for two rounds of pairwise ICP edges in a pose graph
+GATE_SIGMAS = 3.0  # no gate below this many robust standard deviations of the last step's residuals (noisy scans)
+MAX_ITERATIONS = 10  # per stage
+POINTS = 1000  # source points per directed pair
+DAMPING = 1e-6  # Levenberg's damping, × the mean diagonal of the normal equations
+
+
+class Refinement(NamedTuple):
+    poses: np.ndarray  # (S, 4, 4): scan → common frame, the anchor unchanged
+    iterations: int  # Gauss–Newton steps taken over all stages
+    converged: bool  # every stage stopped on its tolerance before MAX_ITERATIONS
+
+
+def _samples(scans, pairs, num_points, seed):
+    """Per directed pair ``(i, j)`` (both directions of each of ``pairs``), seeded random rows of scan ``i``."""
+    directed = [(i, j) for a, b in pairs for i, j in ((a, b), (b, a))]
+    rows = [sampling.sample_indices(np.random.default_rng([seed, i, j]), len(scans[i].points), num_points)
+            for i, j in directed]
+    return directed, rows
+
+
+def _normal_equations(scans, poses, directed, rows, centre, gate):
+    """``(H (6S, 6S), g (6S,), residuals (C,))`` of the Tukey-weighted point-to-plane residuals of every directed
+    pair at ``poses``, gate ``gate`` (left twists about ``centre``)."""
+    num_scans = len(scans)
+    h = np.zeros((num_scans, num_scans, 6, 6))
+    g = np.zeros((num_scans, 6))
+    residuals = []
+    for (i, j), sample in zip(directed, rows):
+        x = se3.apply(poses[i], scans[i].points[sample])  # (M, 3) in the common frame
+        in_j = se3.apply(np.linalg.inv(poses[j]), x)
+        dist, idx = scans[j].tree.query(in_j, distance_upper_bound=gate)
+        near = np.isfinite(dist)
+        if not near.any():
+            continue
+        x = x[near] - centre
+        q = se3.apply(poses[j], scans[j].points[idx[near]]) - centre
+        n = se3.rotate(poses[j], scans[j].normals[idx[near]])
+        r = np.sum((x - q) * n, axis=1)
+        w = icp.tukey_weights(r, gate)
+        ji = np.concatenate([np.cross(x, n), n], axis=1)  # d r / d (ω_i, v_i)
+        jj = np.concatenate([np.cross(n, x - q) - np.cross(q, n), -n], axis=1)  # d r / d (ω_j, v_j)
+        wi, wj = ji * w[:, None], jj * w[:, None]
+        h[i, i] += ji.T @ wi
+        h[j, j] += jj.T @ wj
+        h[i, j] += ji.T @ wj
+        h[j, i] += jj.T @ wi
+        g[i] += wi.T @ r
+        g[j] += wj.T @ r
+        residuals.append(r)
+    residuals = np.concatenate(residuals) if residuals else np.zeros(0)
+    return h.transpose(0, 2, 1, 3).reshape(6 * num_scans, 6 * num_scans), g.reshape(-1), residuals
+
+
+def _step(twist, centre):
+    """``(4, 4)``: ``x ↦ c + Exp(ω)(x − c) + v`` for ``twist = (ω, v)``."""
+    step = np.eye(4)
+    step[:3, :3] = se3.exp(np.concatenate([twist[:3], np.zeros(3)]))[:, :3]
+    step[:3, 3] = centre + twist[3:] - step[:3, :3] @ centre
+    return step
+
+
+def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num_points: int = POINTS,
+                   gates=GATES, max_iterations: int = MAX_ITERATIONS, tolerance: float = 1e-4, seed: int = 0
+                   ) -> Refinement:
+    """Refines ``poses (S, 4, 4)`` of :class:`~rpmnet_jax.multiway.edges.Scan` s over the overlapping ``pairs
+    [(i, j), ...]``: up to ``num_points`` points of each scan of a pair against the other's tangent planes,
+    both directions; ``gates`` × ``max_distance`` in turn (never below ``GATE_SIGMAS`` robust standard
+    deviations of the residuals), up to ``max_iterations`` steps each, a stage ending when no pose moves by
+    more than ``tolerance`` (radians; × the scans' radius in translation). Scan ``anchor`` stays where it is;
+    scans in no pair stay too."""
+    poses = np.array(poses, np.float64)
+    pairs = [tuple(int(s) for s in p) for p in pairs]
+    if not pairs:
+        return Refinement(poses, 0, True)
+    directed, rows = _samples(scans, pairs, num_points, seed)
+    used = sorted({s for p in pairs for s in p} - {anchor})
+    cols = np.concatenate([np.arange(6 * s, 6 * s + 6) for s in used])
+    placed = np.concatenate([se3.apply(poses[s], scans[s].points[:: max(1, len(scans[s].points) // 200)])
+                             for s in sorted({s for p in pairs for s in p})])
+    centre = placed.mean(axis=0)
+    radius = float(np.max(np.linalg.norm(placed - centre, axis=1))) or 1.0
+    total, converged, sigma = 0, True, 0.0
+    for scale in gates:
+        stage_done = False
+        for _ in range(max_iterations):
+            total += 1
+            gate = max(scale * max_distance, GATE_SIGMAS * sigma)
+            h, g, residuals = _normal_equations(scans, poses, directed, rows, centre, gate)
+            if len(residuals) < 6 * len(used):
+                break
+            sigma = 1.4826 * float(np.median(np.abs(residuals)))
+            a = h[np.ix_(cols, cols)]
+            a[np.diag_indices_from(a)] += DAMPING * max(np.trace(a) / len(a), 1e-12)
+            x = np.linalg.solve(a, -g[cols]).reshape(-1, 6)
+            for s, twist in zip(used, x):
+                poses[s] = _step(twist, centre) @ poses[s]
+            if np.abs(x[:, :3]).max() < tolerance and np.abs(x[:, 3:]).max() < tolerance * radius:
+                stage_done = True
+                break
+        converged &= stage_done
+    return Refinement(poses, total, bool(converged))
