@@ -188,15 +188,19 @@ def synthetic_scans():
     return clouds, np.stack(poses)
 
 
-def ring_scans(count: int = 5, seed: int = 0):
-    """``count`` partial views ``(N_i, 3)`` of one synthetic shape (~0.2 across), each seen from a direction
+def ring_scans(count: int = 5, seed: int = 0, asymmetric: bool = False):
+    """``count`` partial views ``(N_i, 3)`` of one synthetic shape (~0.2 across; with ``asymmetric``, of
+    :func:`asymmetric_shape`, else of one that 180° turns about its axes map nearly onto itself), each seen from a direction
     ``360°/count`` further round, in its own frame (rotated by up to ~``3 count``°), and their poses
     ``(count, 4, 4)`` (scan → world): neighbours overlap most, every view overlaps the next."""
     from scipy.spatial.transform import Rotation
 
     from rpmnet_jax.data import synthetic
 
-    world = synthetic.sample_shape(np.random.default_rng(seed), 36, 4000)[:, :3] * 0.1
+    if asymmetric:
+        world = asymmetric_shape(seed, 4000)[0] * 0.1
+    else:
+        world = synthetic.sample_shape(np.random.default_rng(seed), 36, 4000)[:, :3] * 0.1
     world -= world.mean(0)
     clouds, poses = [], []
     for k in range(count):

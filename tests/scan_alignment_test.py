@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import rpmnet_jax
-from conftest import DATA, require, synthetic_scans
+from conftest import DATA, require, ring_scans, synthetic_scans
 from rpmnet_jax.evaluation import pose_errors
 from rpmnet_jax.io import clouds as cloud_io
 from rpmnet_jax.io import poses as scan_poses
@@ -36,7 +36,7 @@ def test_align_scans_four_bunny_scans(bunny):
     assert result.left_out == () and result.voxel_size == 0.003
     assert len(result.edges) >= 3 and {e.stage for e in result.edges} == {"joint"}
     ran = [k for k in result.timings if k != "total"]  # the stages that ran, in the pipeline's order
-    assert ran == [s for s in ("prepare", "classical", "network", "graph", "global", "refine") if s in ran]
+    assert ran == [s for s in ("prepare", "candidates", "classical", "network", "graph", "global", "refine") if s in ran]
     assert {"prepare", "classical", "refine"} <= set(ran) and list(result.timings)[-1] == "total"
     for e in result.edges:
         assert e.information.shape == (6, 6) and 0 < e.fitness <= 1 and e.inlier_rmse > 0
@@ -58,6 +58,18 @@ def test_align_scans_without_refinement_keeps_the_pair_edges(classical):
     assert reports == [(f"{stage} edges", k, 3) for k in (1, 2, 3)]  # three scans: three candidate pairs, in turn
     with pytest.raises(ValueError, match="at least two scans"):
         rpmnet_jax.align_scans(clouds[:1])
+
+
+def test_beyond_all_pairs_the_file_order_does_not_matter():
+    clouds, truth = ring_scans(8, asymmetric=True)  # a shape a 180° turn maps onto itself needs more pairs
+    options = rpmnet_jax.ScanOptions(all_pairs_up_to=4, neighbours=2)  # candidate pairs by the overlap estimate
+    order = [5, 2, 7, 0, 3, 6, 1, 4]  # neighbours on the ring are never neighbours in the list
+    results = [rpmnet_jax.align_scans([clouds[k] for k in o], options=options) for o in (range(8), order)]
+    for o, result in zip((list(range(8)), order), results):
+        errors = pose_errors.pose_errors(result.poses, truth[o], [clouds[k] for k in o])
+        assert all(rot < 0.5 and rms < 5e-4 for rot, rms in errors), errors
+        assert "candidates" in result.timings and result.left_out == ()
+        assert len({(e.source, e.target) for e in result.edges}) < 28  # not every pair
 
 
 def test_bad_options_are_a_value_error():

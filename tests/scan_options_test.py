@@ -21,7 +21,7 @@ def test_defaults_are_valid_and_the_public_name_is_this_class():
 
 @pytest.mark.parametrize("field,value", [
     ("voxel_size", 0.0), ("voxel_size", -1.0), ("max_correspondence_distance", 0.0), ("num_points", 2),
-    ("num_iters", 0), ("batch_size", 0), ("all_pairs_up_to", 1), ("window", 0), ("refine_rounds", -1),
+    ("num_iters", 0), ("batch_size", 0), ("all_pairs_up_to", 1), ("neighbours", 0), ("refine_rounds", -1),
     ("refine_points", 2), ("min_fitness", -0.1), ("min_fitness", 1.5), ("min_overlap", 1.01),
     ("max_plane_residual", 0.0), ("edge_sigma_deg", 0.0), ("edge_sigma_fraction", -0.1), ("refine", "gicp"),
     ("voxel_size", float("nan")), ("min_overlap", float("nan"))])

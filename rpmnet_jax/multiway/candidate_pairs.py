@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from rpmnet_jax.geometry import cloud, fpfh, kdtree, sampling
+from rpmnet_jax.multiway import pose_graph
 
 WORDS = 128  # vocabulary size
 KEYPOINTS = 1000  # descriptors per scan
@@ -111,27 +112,11 @@ def overlap_scores(scans, *, words: int = WORDS, keypoints: int = KEYPOINTS, rad
 
 
 def _spanning_tree(scores: np.ndarray) -> list:
-    """Maximum spanning tree of ``scores (S, S)`` by Kruskal: ``[(i, j)]``, ``i < j``; ties go to the lower
-    pair."""
-    n = len(scores)
-    i, j = np.triu_indices(n, 1)
-    parent = np.arange(n)
-
-    def root(a):
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    tree = []
-    for e in np.argsort(-scores[i, j], kind="stable"):
-        a, b = root(i[e]), root(j[e])
-        if a != b:
-            parent[a] = b
-            tree.append((int(i[e]), int(j[e])))
-            if len(tree) == n - 1:
-                break
-    return tree
+    """Maximum spanning tree of ``scores (S, S)`` (:func:`rpmnet_jax.multiway.pose_graph.spanning_forest`):
+    ``[(i, j)]``, ``i < j``; ties go to the lower pair."""
+    i, j = np.triu_indices(len(scores), 1)
+    tree = pose_graph.spanning_forest(len(scores), np.stack([i, j], axis=1), scores[i, j])
+    return [(int(a), int(b)) for a, b in zip(i[tree], j[tree])]
 
 
 def select_pairs(scores, k: int) -> list:

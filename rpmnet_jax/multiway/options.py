@@ -15,8 +15,8 @@ class ScanOptions:
 
     Sizes (caller's units; ``None``: relative to the median robust scan radius): ``voxel_size`` (default 2%),
     ``max_correspondence_distance`` (the inlier threshold of fitness and overlap, default 5%).
-    Candidate pairs: every pair up to ``all_pairs_up_to`` scans, beyond that each scan with its next ``window``
-    in the given order. Pair edges: ``classical`` (FPFH + RANSAC, then a short ICP) on every candidate pair, the
+    Candidate pairs: every pair up to ``all_pairs_up_to`` scans, beyond that each scan with its ``neighbours``
+    best partners by a cheap overlap estimate (whatever the order of the scans), plus a spanning tree. Pair edges: ``classical`` (FPFH + RANSAC, then a short ICP) on every candidate pair, the
     network on the candidate pairs those leave between separate groups of scans (without ``classical``: the
     network on every candidate pair): ``num_points`` per scan and ``num_iters`` network iterations,
     ``batch_size`` pairs per call.
@@ -24,7 +24,8 @@ class ScanOptions:
     edges), median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (measured on
     the bunny: right answers ≤ 0.06×, wrong ones ≥ 0.19×).
     Refinement: ``refine="joint"`` (default) moves all poses together on the points of every pair predicted to
-    overlap by ``min_overlap`` (1,000 points per scan of a pair; multi-view point-to-plane,
+    overlap by ``min_overlap``, of those each scan's ``refine_neighbours`` most overlapping ones (1,000 points per
+    scan of a pair; multi-view point-to-plane,
     :mod:`rpmnet_jax.multiway.joint_refine`); ``refine="icp"``: ``refine_rounds`` rounds of pairwise ICP edges
     on up to ``refine_points`` points for those pairs, each round a robust pose graph. Edge noise floor:
     ``edge_sigma_deg`` (rotation) and ``edge_sigma_fraction`` × the correspondence distance (translation), per
@@ -36,7 +37,7 @@ class ScanOptions:
     num_iters: int = 3
     batch_size: int = 16
     all_pairs_up_to: int = 12
-    window: int = 3
+    neighbours: int = 6
     voxel_size: float | None = None  # sizes
     max_correspondence_distance: float | None = None
     min_fitness: float = 0.3  # accepting an edge
@@ -44,6 +45,7 @@ class ScanOptions:
     max_plane_residual: float = 0.1
     refine: str = "joint"  # refinement
     refine_rounds: int = 2
+    refine_neighbours: int = 8
     refine_points: int = 3000
     edge_sigma_deg: float = 0.25  # edge noise floor
     edge_sigma_fraction: float = 0.1
@@ -55,7 +57,7 @@ class ScanOptions:
         for name in ("max_plane_residual", "edge_sigma_deg", "edge_sigma_fraction"):
             checks.require_positive(f"ScanOptions.{name}", getattr(self, name))
         for name, least in (("num_points", 3), ("num_iters", 1), ("batch_size", 1), ("all_pairs_up_to", 2),
-                            ("window", 1), ("refine_rounds", 0), ("refine_points", 3)):
+                            ("neighbours", 1), ("refine_rounds", 0), ("refine_neighbours", 1), ("refine_points", 3)):
             checks.require_at_least(f"ScanOptions.{name}", getattr(self, name), least)
         for name in ("min_fitness", "min_overlap"):
             checks.require_fraction(f"ScanOptions.{name}", getattr(self, name))

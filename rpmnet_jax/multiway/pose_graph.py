@@ -63,8 +63,10 @@ ANCHOR_SIGMA = 1e-9  # the prior that holds the anchor at the identity (radians 
 INFORMATION_FLOOR = 1e-9  # a singular information (a planar scan slides) gets this share of its trace on the diagonal
 
 
-def _kruskal(num_nodes: int, pairs: np.ndarray, keys) -> np.ndarray:
-    """``(E,)`` bool: the spanning forest taking edges in decreasing ``keys``."""
+def spanning_forest(num_nodes: int, pairs, keys) -> np.ndarray:
+    """``(E,)`` bool: the maximum spanning forest of the edges ``pairs (E, 2)`` (Kruskal: edges taken in
+    decreasing ``keys``, ties in the given order)."""
+    pairs = _as_pairs(pairs)
     parent = list(range(num_nodes))
 
     def root(a):
@@ -104,7 +106,7 @@ def spanning_tree_poses(num_nodes: int, pairs, transforms, weights, anchor: int)
     """Poses ``(S, 4, 4)`` composed along the maximum-``weights`` spanning tree of the edges (Kruskal), the
     anchor at the identity; NaN for nodes the edges do not connect to it."""
     pairs, transforms = _as_pairs(pairs), np.asarray(transforms, np.float64)
-    return _tree_poses(num_nodes, pairs, transforms, _kruskal(num_nodes, pairs, weights), anchor)
+    return _tree_poses(num_nodes, pairs, transforms, spanning_forest(num_nodes, pairs, weights), anchor)
 
 
 def edge_errors(poses, pairs, transforms, information) -> np.ndarray:
@@ -132,7 +134,7 @@ def consensus_tree(num_nodes: int, pairs, transforms, information, weights, anch
     best, best_score, seen = None, None, set()
     for k in range(num_trees):
         keys = weights if k == 0 else rng.uniform(size=len(weights)) * (weights if k % 2 else 1.0)
-        tree = _kruskal(num_nodes, pairs, keys)
+        tree = spanning_forest(num_nodes, pairs, keys)
         if tree.tobytes() in seen:
             continue
         seen.add(tree.tobytes())

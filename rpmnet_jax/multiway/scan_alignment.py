@@ -5,14 +5,17 @@ Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
 1. prepare: each scan cleaned, voxel-downsampled (``voxel_size``, default 2% of the median robust scan radius,
    :func:`rpmnet_jax.geometry.cloud.robust_radius`), normals averaged per voxel when given, else estimated (PCA)
    on the downsampled scan;
-2. pair edges: every candidate pair (all pairs up to ``all_pairs_up_to`` scans, else each scan with the
-   next ``window`` in the given order, the last ones with the first ones: a ring) is registered by FPFH +
-   RANSAC on 1,024 keypoints per scan (features computed once per scan), then a short point-to-plane ICP; the
-   candidate pairs those edges leave between separate groups of scans go through the network from the identity
-   as in :func:`rpmnet_jax.align` (``init="local"``), in batched calls, then the same short ICP (with
+2. pair edges: the candidate pairs are every pair up to ``all_pairs_up_to`` scans, else each scan with its
+   ``neighbours`` best partners by a cheap overlap estimate (a bag of FPFH words per scan) plus a spanning tree
+   of those scores (:mod:`rpmnet_jax.multiway.candidate_pairs`: O(S·k) pairs whatever the file order). Each is
+   registered by FPFH + RANSAC on 1,024 keypoints per scan (features computed once per scan) and from the
+   identity (scans that come in roughly one frame), each answer refined by a short point-to-plane ICP; the
+   candidate pairs those leave between separate groups of scans go through the network from the identity as in
+   :func:`rpmnet_jax.align` (``init="local"``), in batched calls, then the same short ICP (with
    ``classical=False``, every candidate pair does). An answer is an edge when its fitness is at least
    ``min_fitness`` and its median point-to-plane distance at most ``max_plane_residual`` × the correspondence
-   distance. On the 10 bunny scans the classical edges connect every scan and the network does not run;
+   distance; a pair's distinct answers (a symmetric shape's flip) all go to the graph. On the 10 bunny scans
+   the classical edges connect every scan and the network does not run;
 3. robust pose graph (:mod:`rpmnet_jax.multiway.pose_graph`: a consensus spanning tree, GTSAM's
    Levenberg–Marquardt with a Cauchy kernel, edges beyond the χ² bound rejected) over those edges; wrong
    edges (a flipped pair) are rejected. The largest component of the kept edges is placed;
@@ -43,7 +46,8 @@ import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
 from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, scoring
-from rpmnet_jax.multiway import edges as edges_lib, joint_refine, options as options_lib, pair_engine, pose_graph
+from rpmnet_jax.multiway import candidate_pairs, edges as edges_lib, joint_refine, options as options_lib, pair_engine
+from rpmnet_jax.multiway import pose_graph
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment
 from rpmnet_jax.weights import loading
@@ -67,17 +71,18 @@ class ScanAlignment(NamedTuple):
     left_out: tuple  # indices of scans that overlap none of the placed ones (poses NaN)
     voxel_size: float  # caller's units
     max_correspondence_distance: float  # caller's units
-    timings: dict  # seconds per stage that ran: prepare, classical, network (each with its short ICP), graph,
-    # global, refine; total
+    timings: dict  # seconds per stage that ran: prepare, candidates, classical, network (each with its short ICP),
+    # graph, global, refine; total
     likely_wrong: tuple = ()  # placed scans whose placement by ``align`` (step 4) was flagged ``likely_wrong``
 
 
-def _candidate_pairs(num_scans: int, all_pairs_up_to: int, window: int) -> list:
-    """``[(i, j), ...]``, ``i < j``: every pair, or each scan with its next ``window`` on the ring of scans."""
-    if num_scans <= all_pairs_up_to:
-        return list(itertools.combinations(range(num_scans), 2))
-    pairs = {tuple(sorted((i, (i + k) % num_scans))) for i in range(num_scans) for k in range(1, window + 1)}
-    return sorted(p for p in pairs if p[0] != p[1])
+def _candidate_pairs(scans, all_pairs_up_to: int, neighbours: int, seed: int) -> list:
+    """``[(i, j), ...]``, ``i < j``: every pair up to ``all_pairs_up_to`` scans, else each scan with its
+    ``neighbours`` best partners by the bag-of-words overlap score and a spanning tree of those scores
+    (:mod:`rpmnet_jax.multiway.candidate_pairs`), whatever the order of the scans."""
+    if len(scans) <= all_pairs_up_to:
+        return list(itertools.combinations(range(len(scans)), 2))
+    return candidate_pairs.select_pairs(candidate_pairs.overlap_scores(scans, seed=seed), neighbours)
 
 
 def _prepare_scans(clouds, normals, voxel_size):
@@ -162,15 +167,25 @@ def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, t
     return poses, edges, pending, doubtful
 
 
-def _overlapping_pairs(scans, poses, placed, max_dist, min_overlap) -> list:
+def _overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=None) -> list:
     """``[(i, j), ...]``, ``i < j``: the placed pairs predicted to overlap by ``min_overlap`` at ``poses`` (the
-    pairs whose bounding spheres lie apart are not looked at)."""
+    pairs whose bounding spheres lie apart are not looked at); with ``neighbours``, of those only each scan's
+    ``neighbours`` most overlapping ones (their union)."""
     centres = {s: se3.apply(poses[s], scans[s].points.mean(axis=0)[None])[0] for s in placed}
     radii = {s: float(np.max(np.linalg.norm(scans[s].points - scans[s].points.mean(axis=0), axis=1)))
              for s in placed}
-    return [(i, j) for i, j in itertools.combinations(sorted(placed), 2)
-            if np.linalg.norm(centres[i] - centres[j]) <= radii[i] + radii[j] + max_dist
-            and edges_lib.predicted_overlap(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist) >= min_overlap]
+    near = [(i, j) for i, j in itertools.combinations(sorted(placed), 2)
+            if np.linalg.norm(centres[i] - centres[j]) <= radii[i] + radii[j] + max_dist]
+    overlap = {(i, j): edges_lib.predicted_overlap(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist)
+               for i, j in near}
+    pairs = [p for p in near if overlap[p] >= min_overlap]
+    if neighbours is None:
+        return pairs
+    best = set()
+    for s in placed:
+        mine = sorted((p for p in pairs if s in p), key=lambda p: -overlap[p])
+        best.update(mine[:neighbours])
+    return sorted(best)
 
 
 def _refine_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_, tick):
@@ -184,7 +199,7 @@ def _refine_round(engine, scans, poses, placed, max_dist, min_overlap, keep, rou
 def _refine_jointly(scans, poses, placed, max_dist, o, keep):
     """Step 5 with ``refine="joint"``: the overlapping pairs' points refine all poses together
     (:mod:`rpmnet_jax.multiway.joint_refine`); then each pair measured: (poses, kept edges, the other edges)."""
-    pairs = _overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap)
+    pairs = _overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)
     poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed).poses
     measured = [edges_lib.measure(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist, "joint")
                 for i, j in pairs]
@@ -233,7 +248,8 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     def good(e, fitness):
         return e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
 
-    pairs, edges, weak = _candidate_pairs(num_scans, o.all_pairs_up_to, o.window), [], None
+    with clock.stage("candidates"):
+        pairs, edges, weak = _candidate_pairs(scans, o.all_pairs_up_to, o.neighbours, o.seed), [], None
     if o.classical:
         with clock.stage("classical"):  # 2. every candidate pair: FPFH + RANSAC, a short ICP
             found = [[e for e in answers if good(e, o.min_fitness)] for answers in engine.classical_edges(
