@@ -190,8 +190,8 @@ def synthetic_scans():
 
 def ring_scans(count: int = 5, seed: int = 0, asymmetric: bool = False):
     """``count`` partial views ``(N_i, 3)`` of one synthetic shape (~0.2 across; with ``asymmetric``, of
-    :func:`asymmetric_shape`, else of one that 180° turns about its axes map nearly onto itself), each seen from a direction
-    ``360°/count`` further round, in its own frame (rotated by up to ~``3 count``°), and their poses
+    :func:`asymmetric_shape`, else of one that 180° turns about its axes map nearly onto itself), each seen
+    from a direction ``360°/count`` further round, in its own frame (rotated by up to ~``3 count``°), and their poses
     ``(count, 4, 4)`` (scan → world): neighbours overlap most, every view overlaps the next."""
     from scipy.spatial.transform import Rotation
 
