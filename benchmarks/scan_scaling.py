@@ -9,7 +9,7 @@ in a seeded shuffled order, into a temporary folder or ``--keep DIR/scansN``) an
 ``benchmarks/campaign_time.py``'s own side in a fresh process (reading included), then scored against the true
 poses. One JSON line per size (seconds, process seconds, peak resident memory, pairs registered, scans within
 0.5° and 1 mm), then one with the log-log slopes of time and pairs against scans (1: linear, 2: all pairs).
-``pairs registered`` counts the pair registrations of every stage (``align_scans``' progress totals; a pair
+``pairs registered`` counts the pair registrations of every stage (``ScanAlignment.pairs``; a pair
 registered in two stages counts twice); the global placements onto the merged scans are not pairs and are not
 counted. ``--plot``: time, pairs and peak memory against the number of scans, log-log, beside linear and
 quadratic references.

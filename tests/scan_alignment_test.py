@@ -27,8 +27,13 @@ def _read(names):
 def test_align_scans_four_bunny_scans(bunny):
     names = ["bun000", "bun045", "bun315", "chin"]
     clouds = _read(names)
-    result = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(voxel_size=0.003))
+    reports = []
+    result = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(voxel_size=0.003),
+                                    progress=lambda *report: reports.append(report))
     truth = np.stack([bunny[n] for n in names])
+    assert result.pairs["classical"] == 6 and 3 <= result.pairs["refine"] <= 6 and "network" not in result.pairs
+    assert [r for r in reports if r[0] == "joint refinement stages"] == [("joint refinement stages", k, 3)
+                                                                        for k in (1, 2, 3)]
     errors = pose_errors.pose_errors(result.poses, truth, clouds)
     print(dict(zip(names, errors)))
     np.testing.assert_allclose(result.poses[0], np.eye(4), atol=1e-9)

@@ -82,14 +82,14 @@ def _step(twist, centre):
 
 
 def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num_points: int = POINTS,
-                   gates=GATES, max_iterations: int = MAX_ITERATIONS, tolerance: float = 1e-4, seed: int = 0
-                   ) -> Refinement:
+                   gates=GATES, max_iterations: int = MAX_ITERATIONS, tolerance: float = 1e-4, seed: int = 0,
+                   tick=None) -> Refinement:
     """Refines ``poses (S, 4, 4)`` of :class:`~rpmnet_jax.multiway.edges.Scan` s over the overlapping ``pairs
     [(i, j), ...]``: up to ``num_points`` points of each scan of a pair against the other's tangent planes,
     both directions; ``gates`` × ``max_distance`` in turn (never below ``GATE_SIGMAS`` robust standard
     deviations of the residuals), up to ``max_iterations`` steps each, a stage ending when no pose moves by
     more than ``tolerance`` (radians; × the scans' radius in translation). Scan ``anchor`` stays where it is;
-    scans in no pair stay too."""
+    scans in no pair stay too. ``tick(done, total)`` after each stage (``total``: the number of stages)."""
     poses = np.array(poses, np.float64)
     pairs = [tuple(int(s) for s in p) for p in pairs]
     if not pairs:
@@ -102,7 +102,7 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
     centre = placed.mean(axis=0)
     radius = float(np.max(np.linalg.norm(placed - centre, axis=1))) or 1.0
     total, converged, sigma = 0, True, 0.0
-    for scale in gates:
+    for stage, scale in enumerate(gates):
         stage_done = False
         for _ in range(max_iterations):
             total += 1
@@ -120,4 +120,6 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
                 stage_done = True
                 break
         converged &= stage_done
+        if tick is not None:
+            tick(stage + 1, len(gates))
     return Refinement(poses, total, bool(converged))

@@ -74,6 +74,7 @@ class ScanAlignment(NamedTuple):
     timings: dict  # seconds per stage that ran: prepare, candidates, classical, network (each with its short ICP),
     # graph, global, refine; total
     likely_wrong: tuple = ()  # placed scans whose placement by ``align`` (step 4) was flagged ``likely_wrong``
+    pairs: dict = {}  # pairs registered per stage: classical, network, global (placements), refine (pairs refined)
 
 
 def _candidate_pairs(scans, all_pairs_up_to: int, neighbours: int, seed: int) -> list:
@@ -190,17 +191,17 @@ def _overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=N
 
 def _refine_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_, tick):
     """Step 5, one round: an ICP edge from the current poses for every placed pair predicted to overlap, run by
-    ``engine`` (``tick(done, total)`` as they finish)."""
+    ``engine`` (``tick(done, total)`` as they finish): (the edges ``keep`` accepts, the number of pairs)."""
     pairs = _overlapping_pairs(scans, poses, placed, max_dist, min_overlap)
     starts = [np.linalg.inv(poses[j]) @ poses[i] for i, j in pairs]
-    return [e for e in engine.refine_edges(pairs, starts, round_, tick) if keep(e)]
+    return [e for e in engine.refine_edges(pairs, starts, round_, tick) if keep(e)], len(pairs)
 
 
-def _refine_jointly(scans, poses, placed, max_dist, o, keep):
+def _refine_jointly(scans, poses, placed, max_dist, o, keep, tick):
     """Step 5 with ``refine="joint"``: the overlapping pairs' points refine all poses together
     (:mod:`rpmnet_jax.multiway.joint_refine`); then each pair measured: (poses, kept edges, the other edges)."""
     pairs = _overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)
-    poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed).poses
+    poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed, tick=tick).poses
     measured = [edges_lib.measure(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist, "joint")
                 for i, j in pairs]
     return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]
@@ -248,12 +249,14 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     def good(e, fitness):
         return e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
 
+    counts = {}
     with clock.stage("candidates"):
         pairs, edges, weak = _candidate_pairs(scans, o.all_pairs_up_to, o.neighbours, o.seed), [], None
     if o.classical:
         with clock.stage("classical"):  # 2. every candidate pair: FPFH + RANSAC, a short ICP
             found = [[e for e in answers if good(e, o.min_fitness)] for answers in engine.classical_edges(
                 pairs, ticker("classical edges"))]
+            counts["classical"] = len(pairs)
             edges = [e for answers in found for e in answers]  # a symmetric pair's answers: the graph chooses
         labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
         weak = [p for p, answers in zip(pairs, found) if not answers and labels[p[0]] != labels[p[1]]]
@@ -261,6 +264,7 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     if weak:
         with clock.stage("network"):  # the pairs left between components: the network from the identity
             edges += [e for e in engine.network_edges(weak, ticker("network edges")) if good(e, o.min_fitness)]
+            counts["network"] = len(weak)
 
     rejected = []  # 3. robust pose graph over them: the largest consistent component is placed
     poses = np.full((num_scans, 4, 4), np.nan)
@@ -279,6 +283,7 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
                 scans, poses, params, cfg, voxel, max_dist, seed=o.seed, tick=ticker("placing the other scans"),
                 accept=lambda fitness, residual: (fitness >= o.min_fitness
                                                   and residual <= o.max_plane_residual * max_dist))
+            counts["global"] = len(global_edges)
             global_edges = [e for e in global_edges if good(e, o.min_overlap)]
 
     # 5. refinement rounds (or, without, one graph of the pair and placement edges, at the pair edges' noise)
@@ -286,8 +291,10 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     final_edges, final_rejected = edges + global_edges, []
     for r in range(o.refine_rounds if o.refine == "icp" and len(placed) > 1 else 0):
         with clock.stage("refine"):
-            round_edges = _refine_round(engine, scans, poses, placed, max_dist, o.min_overlap,
-                                        lambda e: good(e, o.min_overlap), r, ticker(f"refinement round {r + 1}"))
+            round_edges, registered = _refine_round(engine, scans, poses, placed, max_dist, o.min_overlap,
+                                                    lambda e: good(e, o.min_overlap), r,
+                                                    ticker(f"refinement round {r + 1}"))
+            counts["refine"] = counts.get("refine", 0) + registered
             if not round_edges:
                 break
             poses, final_edges, final_rejected = _solve(num_scans, round_edges, min(placed), noise, o.seed)
@@ -299,7 +306,9 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     if o.refine == "joint" and len(placed) > 1:
         with clock.stage("refine"):
             poses, final_edges, final_rejected = _refine_jointly(scans, poses, placed, max_dist, o,
-                                                                 lambda e: good(e, o.min_overlap))
+                                                                 lambda e: good(e, o.min_overlap),
+                                                                 ticker("joint refinement stages"))
+            counts["refine"] = len(final_edges) + len(final_rejected)
     if o.refine == "none" and global_edges:
         with clock.stage("graph"):
             poses, final_edges, final_rejected = _solve(num_scans, final_edges, min(placed), network_noise, o.seed)
@@ -311,4 +320,4 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     first = min(s for s in range(num_scans) if s not in left_out)
     poses = np.linalg.inv(poses[first]) @ poses  # NaN rows stay NaN
     return ScanAlignment(poses, tuple(final_edges), tuple(rejected + final_rejected), left_out, voxel, max_dist,
-                         clock.timings(), tuple(s for s in doubtful if s not in left_out))
+                         clock.timings(), tuple(s for s in doubtful if s not in left_out), counts)
