@@ -1,0 +1,118 @@
+"""How likely a pair edge of :func:`rpmnet_jax.align_scans` is wrong (rotation more than 5° off): a few numbers
+the pipeline knows about the edge and the pair's other answers (:func:`features`) through the shipped calibrated
+model (:func:`p_wrong`); and which scans' poses rest on flagged edges (:func:`resting_on_flagged`).
+
+The model (``rpmnet_jax/weights/edge_doubt.json``: logistic regression over standardised :data:`FEATURES`, Platt
+scaling, the same form as the one-pair model of :mod:`rpmnet_jax.pairwise.doubt`) is fitted offline by
+``experiments/fit_edge_doubt.py`` on classical edges (``edges.classical_edges``) of simulated range scans of
+training meshes; here it is plain NumPy. It reads an edge and never changes it. Its two bars: ``threshold`` (0.5,
+likely wrong; the per-scan report) and ``reject_threshold`` (0.9, keep the edge out of the graph); measured in
+``docs/model_card.md``.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+
+import numpy as np
+
+from rpmnet_jax.multiway import options as options_lib, pose_graph
+from rpmnet_jax.ops import se3
+from rpmnet_jax.pairwise import doubt
+
+WRONG_DEG = doubt.WRONG_DEG  # an edge is wrong when its rotation is more than this far from the truth
+FEATURES = ("fitness", "plane", "rmse", "good", "conditioning", "rotation_conditioning", "translation_conditioning",
+            "distinct", "rank", "other_fitness", "fitness_margin", "other_gap")
+MODEL_PATH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "weights", "edge_doubt.json")
+_DEFAULTS = options_lib.ScanOptions()  # the "good" feature: align_scans' default rule for a pair edge
+
+
+def lever(information) -> tuple:
+    """``(centre (3,), radius)`` of the pairs behind a point-to-plane ``information (6, 6)`` (rotation first, about
+    the source frame's origin): the pivot that decouples rotation from translation best (least squares of the
+    cross block) and the RMS lever arm about it, ``sqrt(1.5 tr(rotation block) / tr(translation block))`` (1 for
+    a zero matrix): what :func:`doubt.conditioning` needs, read off the matrix."""
+    info = np.asarray(information, np.float64)
+    cross, trans = info[:3, 3:], info[3:, 3:]  # Σ (p×m) mᵀ, Σ m mᵀ; about a pivot c the first is cross − ĉ trans
+    system = np.concatenate([np.asarray(se3.hat(trans[:, k])) for k in range(3)])  # (9, 3): ĉ C[:, k] = −Ĉ[:, k] c
+    centre = np.linalg.lstsq(system, -cross.T.reshape(-1), rcond=None)[0]
+    b = np.eye(6)
+    b[3:, :3] = -np.asarray(se3.hat(centre))
+    b_inv = np.linalg.inv(b)
+    rotation = (b_inv.T @ info @ b_inv)[:3, :3]
+    t = np.trace(trans)
+    radius = float(np.sqrt(1.5 * np.trace(rotation) / t)) if t > 0 and np.trace(rotation) > 0 else 1.0
+    return centre, radius
+
+
+def features(edge, max_distance: float, answers=()) -> np.ndarray:
+    """The :data:`FEATURES` ``(F,)`` of ``edge`` (an :class:`~rpmnet_jax.multiway.edges.Edge`, or anything with
+    its ``transform``, ``fitness``, ``inlier_rmse``, ``information``, ``plane_residual``) measured within
+    ``max_distance``; ``answers``: all distinct answers of its pair (``edges.classical_edges``, before the good
+    rule; the edge among them or not), which give its rank by fitness, the best other answer's fitness and the
+    nearest other answer's rotation gap."""
+    d = float(max_distance)
+    t = np.asarray(edge.transform, np.float64)
+    others = [a for a in answers if not np.array_equal(np.asarray(a.transform, np.float64), t)]
+    other_fit = max((float(a.fitness) for a in others), default=0.0)
+    gap = min((float(se3.rotation_angle_deg(np.asarray(a.transform, np.float64)[:3, :3] @ t[:3, :3].T))
+               for a in others), default=0.0)
+    plane = min(float(edge.plane_residual) / d, 1.0)  # inf without pairs
+    cond = doubt.conditioning(edge.information, *lever(edge.information))
+    values = {
+        "fitness": float(edge.fitness), "plane": plane, "rmse": float(edge.inlier_rmse) / d,
+        "good": float(edge.fitness >= _DEFAULTS.min_fitness and plane <= _DEFAULTS.max_plane_residual),
+        "conditioning": cond[0] / 12.0, "rotation_conditioning": cond[1] / 12.0,
+        "translation_conditioning": cond[2] / 12.0,
+        "distinct": float(np.log1p(len(others) + 1)),
+        "rank": float(sum(float(a.fitness) > float(edge.fitness) for a in others)),
+        "other_fitness": other_fit, "fitness_margin": float(edge.fitness) - other_fit, "other_gap": gap / 180.0}
+    return np.array([values[k] for k in FEATURES])
+
+
+class Model(doubt.Model):
+    """:class:`doubt.Model` (standardise, logistic score, Platt) over the :data:`FEATURES` of an edge;
+    ``threshold``: the bar of ``likely_wrong`` (and of :func:`resting_on_flagged`), ``reject_threshold``: the
+    higher bar at which an edge is best kept out of the pose graph."""
+
+    def __init__(self, spec: dict):
+        if tuple(spec["features"]) != FEATURES:
+            raise ValueError(f"the edge doubt model was fitted on features {spec['features']}, this code makes "
+                             f"{FEATURES}")
+        super().__init__({**spec, "features": doubt.FEATURES})  # the same numbers, checked against ours above
+        self.reject_threshold = float(spec["reject_threshold"])
+
+
+@functools.lru_cache(maxsize=4)
+def load(path: str = MODEL_PATH) -> Model:
+    """The model of a JSON file (default the shipped one), read once."""
+    with open(path) as f:
+        return Model(json.load(f))
+
+
+def p_wrong(edge, max_distance: float, answers=(), model: Model | None = None) -> float:
+    """The probability that the rotation of one edge (see :func:`features`) is more than ``WRONG_DEG`` off; likely
+    wrong at ``model.threshold`` and up, best kept out of the pose graph at ``model.reject_threshold`` and up."""
+    model = model or load()
+    return float(model.probability(features(edge, max_distance, answers)))
+
+
+def p_wrong_of_pairs(answers_per_pair, max_distance: float, model: Model | None = None) -> list:
+    """``[(E_k,) probabilities, ...]``: :func:`p_wrong` of every answer of every pair, ``answers_per_pair`` a list
+    of each pair's distinct answers (as ``edges.classical_edges`` returns them, before the good rule)."""
+    model = model or load()
+    out = []
+    for answers in answers_per_pair:
+        x = [features(e, max_distance, answers) for e in answers]
+        out.append(model.probability(np.stack(x)) if x else np.zeros(0))
+    return out
+
+
+def resting_on_flagged(num_scans: int, pairs, flagged, anchor: int) -> np.ndarray:
+    """``(S,)`` bool: scans joined to ``anchor`` by the kept edges ``pairs (E, 2)`` but not by those of them that
+    are not ``flagged (E,)``: every path of their pose to the anchor crosses a likely wrong edge."""
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    flagged = np.asarray(flagged, bool).reshape(-1)
+    return pose_graph.component(num_scans, pairs, anchor) & ~pose_graph.component(num_scans, pairs[~flagged], anchor)
