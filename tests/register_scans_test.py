@@ -5,6 +5,7 @@ from scratch on Dask workers)."""
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -195,6 +196,21 @@ def test_bad_scheduler_or_cache_exits_2_and_writes_nothing(tmp_path, capsys):
         err = capsys.readouterr().err
         assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, (message, err)
         assert not out.exists() and not (tmp_path / "c").exists() and not (tmp_path / "no").exists()
+
+
+@pytest.mark.slow  # waits for the connection timeout (20 s)
+def test_a_scheduler_that_does_not_answer_exits_2_and_writes_nothing(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    clouds, _ = synthetic_scans()
+    paths = _write_scans(tmp_path, clouds, ["s0", "s1", "s2"])
+    out = tmp_path / "poses.conf"
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    rc = register_scans.main(paths + ["--out-poses", str(out), "--scheduler", f"tcp://127.0.0.1:{port}"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "no Dask scheduler answers" in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
 
 
 _CLI = [sys.executable, "-c", "from rpmnet_jax.cli.register_scans import entry; entry()"]

@@ -22,7 +22,7 @@ class ScanOptions:
     ``batch_size`` pairs per call.
     Accepting an edge: fitness ≥ ``min_fitness`` (network and global edges) or ≥ ``min_overlap`` (refinement
     edges), median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (measured on
-    the bunny: right answers ≤ 0.06×, wrong ones ≥ 0.19×).
+    the bunny: right answers ≤ 0.06×, wrong ones ≥ 0.13×).
     Refinement: ``refine="joint"`` (default) moves all poses together on the points of every pair predicted to
     overlap by ``min_overlap``, of those each scan's ``refine_neighbours`` most overlapping ones (1,000 points per
     scan of a pair; multi-view point-to-plane,
