@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import tempfile
 import time
 import zlib
 
@@ -59,31 +60,18 @@ def collect(a) -> None:
 
 
 def fit(a) -> None:
-    from sklearn import linear_model, model_selection, preprocessing
     from rpmnet_jax.evaluation import calibration, doubt_records
     from rpmnet_jax.pairwise import doubt
     rows = doubt_records.read(a.cache)
     x, y = doubt_records.features(rows), doubt_records.labels(rows)
     groups = np.array([zlib.crc32(f"{r['set']}/{r['idx']}".encode()) % 10 for r in rows])  # a shape in one fold
-    scaler = preprocessing.StandardScaler().fit(x)
-    scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
-    z = (x - scaler.mean_) / scale
-    lr = linear_model.LogisticRegression(C=a.c, max_iter=2000)
-    oof = np.zeros(len(y))
-    for train, test in model_selection.GroupKFold(5).split(z, y, groups):
-        oof[test] = lr.fit(z[train], y[train]).decision_function(z[test])
-    platt = _platt().fit(oof[:, None], y)  # Platt: a logistic map of the out-of-fold scores
-    p_oof = np.zeros(len(y))  # honest: each fold's probabilities from the map fitted on the other folds' scores
-    for k in np.unique(groups % 5):
-        held = groups % 5 == k
-        p_oof[held] = _platt().fit(oof[~held, None], y[~held]).predict_proba(oof[held, None])[:, 1]
-    lr.fit(z, y)
+    fitted = calibration.fit_logistic_platt(x, y, groups, 5, a.c, 2000)
+    scaler, scale, lr, platt = fitted.scaler, fitted.scale, fitted.lr, fitted.platt
+    p_oof = calibration.held_out_platt(fitted.scores, y, groups % 5)
     setting = np.array([r["setting"] for r in rows])
-    threshold = a.threshold if a.threshold is not None else _threshold(p_oof, y, setting == "std")
-    spec = {"features": list(doubt.FEATURES), "mean": scaler.mean_.tolist(), "scale": scale.tolist(),
-            "coef": lr.coef_[0].tolist(), "intercept": float(lr.intercept_[0]),
-            "platt_a": float(platt.coef_[0, 0]), "platt_b": float(platt.intercept_[0]),
-            "threshold": threshold, "wrong_deg": doubt.WRONG_DEG,
+    threshold = (a.threshold if a.threshold is not None
+                 else calibration.lowest_bar(p_oof, ~y & (setting == "std"), MAX_FLAGGED_RIGHT))
+    spec = {"features": list(doubt.FEATURES), **fitted.spec(), "threshold": threshold, "wrong_deg": doubt.WRONG_DEG,
             "fitted_on": {"pairs": len(y), "wrong": int(y.sum()), "sources": sorted({r["set"] for r in rows}),
                           "split": "train", "c": a.c}}
     with open(a.output, "w") as f:
@@ -114,24 +102,10 @@ def fit(a) -> None:
 MAX_FLAGGED_RIGHT = 0.02  # the default bar flags at most this share of the right answers of the paper's settings
 
 
-def _platt():
-    from sklearn import linear_model
-    return linear_model.LogisticRegression(C=1e6, max_iter=1000)  # no penalty to speak of: two numbers
-
-
-def _threshold(p_oof, wrong, std) -> float:
-    """The lowest bar on a 0.05 grid whose out-of-fold flags take at most ``MAX_FLAGGED_RIGHT`` of the right
-    answers of the paper's settings (``std``): as many wrong answers caught as that allows."""
-    for t in np.round(np.arange(0.1, 0.951, 0.05), 2):
-        if np.mean(p_oof[~wrong & std] >= t) <= MAX_FLAGGED_RIGHT:
-            return float(t)
-    return 0.95
-
-
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("command", choices=("collect", "fit"))
-    p.add_argument("--cache", default="/tmp/rpmnet_doubt/train.jsonl")
+    p.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "rpmnet_doubt", "train.jsonl"))
     p.add_argument("--data-roots", default=DATA_ROOTS)
     p.add_argument("--minutes", type=float, default=55.0)
     p.add_argument("--output", default=os.path.join("rpmnet_jax", "weights", "doubt.json"))

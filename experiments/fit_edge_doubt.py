@@ -75,47 +75,20 @@ def collect(a) -> None:
                           "seconds": round(time.time() - t0, 1)}), flush=True)
 
 
-def _platt():
-    from sklearn import linear_model
-    return linear_model.LogisticRegression(C=1e6, max_iter=1000)  # no penalty to speak of: two numbers
-
-
-def _reject_threshold(p_oof, wrong, good, max_flagged_right) -> float:
-    """The lowest bar on a 0.05 grid whose out-of-fold flags take at most ``max_flagged_right`` of the right good
-    edges: as many wrong edges kept out of the graph as that allows."""
-    for t in np.round(np.arange(0.1, 0.951, 0.05), 2):
-        if np.mean(p_oof[~wrong & good] >= t) <= max_flagged_right:
-            return float(t)
-    return 0.95
-
-
 def fit(a) -> None:
-    from sklearn import linear_model, model_selection, preprocessing
     from rpmnet_jax.evaluation import calibration, edge_doubt_records as records
     from rpmnet_jax.multiway import edge_doubt
     recs = records.read(a.cache)
     x, y, good = records.features(recs), records.labels(recs), records.good(recs)
     groups = np.array([r["mesh"] for r in recs for _ in r["answers"]])
     folds = min(6, len(np.unique(groups)))
-    scaler = preprocessing.StandardScaler().fit(x)
-    scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)
-    z = (x - scaler.mean_) / scale
-    lr = linear_model.LogisticRegression(C=a.c, max_iter=5000)
-    oof, fold = np.zeros(len(y)), np.zeros(len(y), int)
-    for k, (train, test) in enumerate(model_selection.GroupKFold(folds).split(z, y, groups)):
-        oof[test], fold[test] = lr.fit(z[train], y[train]).decision_function(z[test]), k
-    platt = _platt().fit(oof[:, None], y)
-    p_oof = np.zeros(len(y))  # honest: each fold's probabilities from the map fitted on the other folds' scores
-    for k in range(folds):
-        held = fold == k
-        p_oof[held] = _platt().fit(oof[~held, None], y[~held]).predict_proba(oof[held, None])[:, 1]
-    lr.fit(z, y)
+    fitted = calibration.fit_logistic_platt(x, y, groups, folds, a.c, 5000)
+    scaler, scale, lr, platt = fitted.scaler, fitted.scale, fitted.lr, fitted.platt
+    p_oof = calibration.held_out_platt(fitted.scores, y, fitted.fold)
     threshold = a.threshold
-    reject = _reject_threshold(p_oof, y, good, a.max_flagged_right)
-    spec = {"features": list(edge_doubt.FEATURES), "mean": scaler.mean_.tolist(), "scale": scale.tolist(),
-            "coef": lr.coef_[0].tolist(), "intercept": float(lr.intercept_[0]),
-            "platt_a": float(platt.coef_[0, 0]), "platt_b": float(platt.intercept_[0]),
-            "threshold": threshold, "reject_threshold": reject, "wrong_deg": edge_doubt.WRONG_DEG,
+    reject = calibration.lowest_bar(p_oof, ~y & good, a.max_flagged_right)  # as many wrong good edges kept out
+    spec = {"features": list(edge_doubt.FEATURES), **fitted.spec(), "threshold": threshold, "reject_threshold": reject,
+            "wrong_deg": edge_doubt.WRONG_DEG,
             "fitted_on": {"edges": len(y), "wrong": int(y.sum()), "good": int(good.sum()),
                           "good_wrong": int((good & y).sum()), "meshes": sorted({r["set"] for r in recs}),
                           "source": "real_meshes_train train file, Poisson meshes, simulated range scans",

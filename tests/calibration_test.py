@@ -23,3 +23,25 @@ def test_ece_is_zero_when_frequencies_match_and_the_gap_otherwise():
     count, mean_p, freq = calibration.bins(p, y)
     assert count.sum() == 20 and count[0] == 10 and count[7] == 10
     assert freq[7] == pytest.approx(0.7) and mean_p[0] == pytest.approx(0.05) and np.isnan(freq[3])
+
+
+def test_lowest_bar_flags_at_most_the_share_asked():
+    p = np.array([0.05, 0.12, 0.33, 0.41, 0.72, 0.97])
+    right = np.array([True, True, True, True, False, False])
+    assert calibration.lowest_bar(p, right, 0.25) == 0.35  # 0.3 flags 2 of 4 right rows, 0.35 flags 1
+    assert calibration.lowest_bar(p, right, 0.0) == 0.45
+    assert calibration.lowest_bar(np.ones(6), right, 0.0) == 0.95  # no bar on the grid does: the top one
+
+
+def test_the_fit_ranks_a_separable_feature_and_held_out_probabilities_follow_it():
+    pytest.importorskip("sklearn")
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(400, 2))
+    y = x[:, 0] + 0.3 * rng.normal(size=400) > 0
+    groups = np.arange(400) % 8
+    fitted = calibration.fit_logistic_platt(x, y, groups, 4, 1.0, 1000)
+    assert set(fitted.fold) == {0, 1, 2, 3} and fitted.scores.shape == (400,)
+    assert abs(fitted.lr.coef_[0, 0]) > 5 * abs(fitted.lr.coef_[0, 1])  # the label's feature, not the noise
+    p = calibration.held_out_platt(fitted.scores, y, fitted.fold)
+    assert calibration.auroc(p, y) > 0.9 and np.all((p >= 0) & (p <= 1))
+    assert set(fitted.spec()) == {"mean", "scale", "coef", "intercept", "platt_a", "platt_b"}
