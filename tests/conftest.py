@@ -188,6 +188,25 @@ def synthetic_scans():
     return clouds, np.stack(poses)
 
 
+def cropped_pair(seed: int = 0, n: int = 1200):
+    """Two overlapping 70% crops (cut in different directions) of disjoint halves of ``n`` samples of
+    :func:`asymmetric_shape` as :class:`rpmnet_jax.multiway.edges.Scan` s (``(~0.35 n, 3)`` each); scan 1 lies in
+    a frame turned by 40° and moved: ``truth (4, 4)`` maps scan 0 onto scan 1."""
+    from rpmnet_jax.multiway import edges
+
+    pts, nrm = asymmetric_shape(seed, n)
+    truth = np.eye(4)
+    truth[:3, :3], truth[:3, 3] = rotation_about([0.5, -0.3, 1.0], 40.0), [0.2, -0.1, 0.3]
+    out = []
+    for k, direction in enumerate(([1.0, 0.3, 0.1], [-0.2, 1.0, 0.4])):
+        p, n_ = pts[k::2], nrm[k::2]
+        d = p @ np.asarray(direction)
+        keep = d > np.quantile(d, 0.3)
+        motion = truth if k else np.eye(4)
+        out.append(edges.make_scan(p[keep] @ motion[:3, :3].T + motion[:3, 3], n_[keep] @ motion[:3, :3].T))
+    return out, truth
+
+
 def ring_scans(count: int = 5, seed: int = 0, asymmetric: bool = False):
     """``count`` partial views ``(N_i, 3)`` of one synthetic shape (~0.2 across; with ``asymmetric``, of
     :func:`asymmetric_shape`, else of one that 180° turns about its axes map nearly onto itself), each seen

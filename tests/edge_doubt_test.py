@@ -9,7 +9,7 @@ import types
 import numpy as np
 import pytest
 
-from conftest import asymmetric_shape, rotation_about
+from conftest import cropped_pair, rotation_about
 from rpmnet_jax.geometry import scoring
 from rpmnet_jax.multiway import edge_doubt, edges
 from rpmnet_jax.pairwise import doubt
@@ -77,24 +77,8 @@ def test_shipped_model_loads_and_matches_scikit_learn():
         edge_doubt.Model({**spec, "features": spec["features"][::-1]})
 
 
-def _pair():
-    """Two overlapping 70% crops of disjoint samples of an asymmetric shape (radius 1), scan 1 in a frame turned
-    by 40° and moved: ``truth`` maps scan 0 onto scan 1."""
-    pts, nrm = asymmetric_shape(0, 1600)
-    truth = np.eye(4)
-    truth[:3, :3], truth[:3, 3] = rotation_about([0.5, -0.3, 1.0], 40.0), [0.2, -0.1, 0.3]
-    scans = []
-    for k, direction in enumerate(([1.0, 0.3, 0.1], [-0.2, 1.0, 0.4])):
-        p, n = pts[k::2], nrm[k::2]
-        d = p @ np.asarray(direction)
-        keep = d > np.quantile(d, 0.3)
-        motion = truth if k else np.eye(4)
-        scans.append(edges.make_scan(p[keep] @ motion[:3, :3].T + motion[:3, 3], n[keep] @ motion[:3, :3].T))
-    return scans, truth
-
-
 def test_a_90_degree_off_edge_is_flagged_and_the_right_one_is_not():
-    scans, truth = _pair()
+    scans, truth = cropped_pair(0, 1600)
     turn = np.eye(4)
     turn[:3, :3] = rotation_about([1.0, 1.0, 0.0], 90.0)
     right = edges.measure(scans, 0, 1, truth, MAX_DISTANCE, "classical")

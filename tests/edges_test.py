@@ -6,27 +6,11 @@ import numpy as np
 import pytest
 
 import rpmnet_jax
-from conftest import asymmetric_shape, rotation_about, rotation_error_deg
+from conftest import asymmetric_shape, cropped_pair, rotation_about, rotation_error_deg
 from rpmnet_jax.multiway import edges
 from rpmnet_jax.weights import loading
 
 MAX_DISTANCE = 0.05  # the default correspondence distance: 5% of the unit radius
-
-
-def _scans(seed):
-    """Two overlapping 70% crops (cut in different directions) of disjoint samples of an asymmetric shape,
-    ``(420, 3)`` each; scan 1 lies in a frame turned by 40° and moved: ``truth`` maps scan 0 onto scan 1."""
-    pts, nrm = asymmetric_shape(seed, 1200)
-    truth = np.eye(4)
-    truth[:3, :3], truth[:3, 3] = rotation_about([0.5, -0.3, 1.0], 40.0), [0.2, -0.1, 0.3]
-    out = []
-    for k, direction in enumerate(([1.0, 0.3, 0.1], [-0.2, 1.0, 0.4])):
-        p, n = pts[k::2], nrm[k::2]
-        d = p @ np.asarray(direction)
-        keep = d > np.quantile(d, 0.3)
-        motion = truth if k else np.eye(4)
-        out.append(edges.make_scan(p[keep] @ motion[:3, :3].T + motion[:3, 3], n[keep] @ motion[:3, :3].T))
-    return out, truth
 
 
 def _turned(transform, degrees, axis=(1.0, 1.0, 0.0), shift=(0.0, 0.0, 0.0)):
@@ -37,7 +21,7 @@ def _turned(transform, degrees, axis=(1.0, 1.0, 0.0), shift=(0.0, 0.0, 0.0)):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_icp_edge_recovers_a_known_transform(seed):
-    scans, truth = _scans(seed)
+    scans, truth = cropped_pair(seed)
     start = _turned(truth, 6.0, shift=(0.03, 0.0, -0.03))  # a network-sized error
     e = edges.icp_edge(scans, 0, 1, start, MAX_DISTANCE, np.random.default_rng(0), num_points=256)
     assert (e.source, e.target, e.stage) == (0, 1, "refine")
@@ -50,7 +34,7 @@ def test_icp_edge_recovers_a_known_transform(seed):
 
 @pytest.mark.parametrize("degrees", [40.0, 150.0])
 def test_classical_edge_recovers_a_known_transform_at_any_angle(degrees):
-    scans, truth = _scans(0)
+    scans, truth = cropped_pair(0)
     turn = np.eye(4)
     turn[:3, :3] = rotation_about([0.3, 1.0, -0.2], degrees - 40.0)  # scan 1 turned further: 40° or 150° in all
     moved = edges.make_scan(scans[1].points @ turn[:3, :3].T, scans[1].normals @ turn[:3, :3].T, 0.3, seed=1)
@@ -68,7 +52,7 @@ def test_classical_edge_recovers_a_known_transform_at_any_angle(degrees):
 
 
 def test_measure_tells_the_truth_from_a_wrong_pose():
-    scans, truth = _scans(0)
+    scans, truth = cropped_pair(0)
     right = edges.measure(scans, 0, 1, truth, MAX_DISTANCE, "network")
     wrong = edges.measure(scans, 0, 1, _turned(truth, 20.0), MAX_DISTANCE, "network")
     assert right.stage == "network" and right.information.shape == (6, 6)
@@ -80,7 +64,7 @@ def test_measure_tells_the_truth_from_a_wrong_pose():
 
 
 def test_predicted_overlap_is_larger_at_the_true_pose():
-    scans, truth = _scans(1)
+    scans, truth = cropped_pair(1)
     at_truth = edges.predicted_overlap(scans, 0, 1, truth, MAX_DISTANCE)
     assert at_truth > 0.5  # the crops' overlap (measured 0.58)
     assert at_truth > 2 * edges.predicted_overlap(scans, 0, 1, _turned(truth, 90.0, axis=(0, 0, 1)), MAX_DISTANCE)
