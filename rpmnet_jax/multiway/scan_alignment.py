@@ -172,9 +172,9 @@ def _overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=N
     """``[(i, j), ...]``, ``i < j``: the placed pairs predicted to overlap by ``min_overlap`` at ``poses`` (the
     pairs whose bounding spheres lie apart are not looked at); with ``neighbours``, of those only each scan's
     ``neighbours`` most overlapping ones (their union)."""
-    centres = {s: se3.apply(poses[s], scans[s].points.mean(axis=0)[None])[0] for s in placed}
-    radii = {s: float(np.max(np.linalg.norm(scans[s].points - scans[s].points.mean(axis=0), axis=1)))
-             for s in placed}
+    means = {s: scans[s].points.mean(axis=0) for s in placed}  # each scan's centre in its own frame
+    centres = {s: se3.apply(poses[s], means[s][None])[0] for s in placed}
+    radii = {s: float(np.max(np.linalg.norm(scans[s].points - means[s], axis=1))) for s in placed}
     near = [(i, j) for i, j in itertools.combinations(sorted(placed), 2)
             if np.linalg.norm(centres[i] - centres[j]) <= radii[i] + radii[j] + max_dist]
     overlap = {(i, j): edges_lib.predicted_overlap(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist)
@@ -251,7 +251,8 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
 
     counts = {}
     with clock.stage("candidates"):
-        pairs, edges, weak = _candidate_pairs(scans, o.all_pairs_up_to, o.neighbours, o.seed), [], None
+        pairs = _candidate_pairs(scans, o.all_pairs_up_to, o.neighbours, o.seed)
+    edges, weak = [], pairs  # without classical edges, every candidate pair goes through the network
     if o.classical:
         with clock.stage("classical"):  # 2. every candidate pair: FPFH + RANSAC, a short ICP
             found = [[e for e in answers if good(e, o.min_fitness)] for answers in engine.classical_edges(
@@ -260,7 +261,6 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
             edges = [e for answers in found for e in answers]  # a symmetric pair's answers: the graph chooses
         labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
         weak = [p for p, answers in zip(pairs, found) if not answers and labels[p[0]] != labels[p[1]]]
-    weak = pairs if weak is None else weak
     if weak:
         with clock.stage("network"):  # the pairs left between components: the network from the identity
             edges += [e for e in engine.network_edges(weak, ticker("network edges")) if good(e, o.min_fitness)]
