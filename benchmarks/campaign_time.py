@@ -2,7 +2,7 @@
 ``truth.conf`` of ``python -m experiments.make_range_scans``, or any folder of scans with a Stanford ``.conf``).
 
     python benchmarks/campaign_time.py SET [--conf truth.conf] [--units m] [--limit-scans N] [--skip-open3d]
-        [--open3d-voxel V] [--repeat 1] [--out-jsonl results.jsonl]
+        [--open3d-voxel V] [--open3d-timeout SECONDS] [--repeat 1] [--out-jsonl results.jsonl]
 
 Each side runs in a fresh process of its own, one after the other, on the scans of the ``.conf`` in its order
 (file order; for a shuffled set, order says nothing about overlap): ours reads them with
@@ -86,7 +86,9 @@ def run_open3d(paths, voxel: float, seed: int) -> dict:
     t0 = time.perf_counter()
     scans = [np.asarray(o3d.io.read_point_cloud(p).points) for p in paths]
     read_seconds = time.perf_counter() - t0
-    poses = baselines.open3d_multiway(scans, voxel, seed=seed)
+    poses = baselines.open3d_multiway(  # progress on stderr: how far a run stopped by --open3d-timeout came
+        scans, voxel, seed=seed, progress=lambda done, total: print(f"pairs {done} {total} {time.perf_counter() - t0:.1f}",
+                                                                    file=sys.stderr, flush=True))
     seconds = time.perf_counter() - t0
     s = len(scans)
     return {"seconds": seconds, "read_seconds": read_seconds, "rss_after_imports_mb": base,
@@ -139,11 +141,19 @@ def commit() -> str:
     return head.stdout.strip() + ("+" if dirty else "")
 
 
-def child_run(script: str, argv: list, side: str, extra=()) -> dict:
+def child_run(script: str, argv: list, side: str, extra=(), timeout: float | None = None) -> dict:
     """The last JSON line of ``script argv --side side`` run in a fresh process, with its wall time
-    (``process_seconds``); ``error`` (its last stderr line) when it failed."""
+    (``process_seconds``); ``error`` (its last stderr line) when it failed; stopped after ``timeout`` seconds:
+    ``timed_out`` and ``pairs_done`` (of ``pairs_total``, by then, from its progress lines)."""
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, script, *argv, "--side", side, *extra], capture_output=True, text=True)
+    try:
+        proc = subprocess.run([sys.executable, script, *argv, "--side", side, *extra], capture_output=True,
+                              text=True, timeout=timeout)
+    except subprocess.TimeoutExpired as stopped:
+        err = stopped.stderr.decode() if isinstance(stopped.stderr, bytes) else (stopped.stderr or "")
+        done = [line.split() for line in err.splitlines() if line.startswith("pairs ")]
+        return {"error": f"stopped after {timeout:.0f} s", "timed_out": True, "process_seconds": timeout,
+                "pairs_done": int(done[-1][1]) if done else 0, "pairs_total": int(done[-1][2]) if done else None}
     wall = time.perf_counter() - t0
     lines = proc.stdout.strip().splitlines()
     if proc.returncode or not lines:
@@ -163,6 +173,8 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--repeat", type=int, default=1, help="fresh processes per side (default 1)")
     p.add_argument("--out-jsonl", default=None, help="append the JSON lines to this file")
+    p.add_argument("--open3d-timeout", type=float, default=None,
+                   help="stop Open3D's run after this many seconds (its record says how many pairs it had done)")
     p.add_argument("--side", choices=("ours", "open3d"), default=None, help="(internal) one side, in this process")
     a = p.parse_args(argv)
     if a.side:
@@ -188,7 +200,8 @@ def main(argv=None) -> int:
     results = {}
     for side in ("ours",) + (() if a.skip_open3d else ("open3d",)):
         for k in range(a.repeat):
-            out = child_run(os.path.abspath(__file__), child_argv, side)
+            out = child_run(os.path.abspath(__file__), child_argv, side,
+                            timeout=a.open3d_timeout if side == "open3d" else None)
             if "error" not in out:
                 out.update(score(out.pop("poses"), truth, clouds, scale))
                 print(f"{side} run {k + 1}: {out['seconds']:.1f} s ({out['process_seconds']:.1f} s process), peak "
@@ -198,6 +211,14 @@ def main(argv=None) -> int:
                       file=sys.stderr)
             results[side] = dict(record, side=side, run=k + 1, **out)
             bench_utils.emit(results[side], a.out_jsonl)
+    if "ours" in results and results.get("open3d", {}).get("timed_out") and "error" not in results["ours"]:
+        theirs = results["open3d"]
+        print(f"open3d: stopped after {a.open3d_timeout:.0f} s at pair {theirs['pairs_done']} of "
+              f"{theirs['pairs_total']}", file=sys.stderr)
+        bench_utils.emit({"task": "scan_campaign_ratio", "set": record["set"], "scans": len(names),
+                          "seconds_ratio_at_most": results["ours"]["process_seconds"] / a.open3d_timeout,
+                          "open3d_pairs_done": theirs["pairs_done"], "open3d_pairs_total": theirs["pairs_total"],
+                          "target_seconds_ratio": 0.2}, a.out_jsonl)
     if {"ours", "open3d"} <= set(results) and not any("error" in r for r in results.values()):
         ours, theirs = results["ours"], results["open3d"]
         bench_utils.emit({"task": "scan_campaign_ratio", "set": record["set"], "scans": len(names),

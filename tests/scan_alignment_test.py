@@ -1,15 +1,16 @@
 """``align_scans``: real bunny scans into one frame, the pair edges alone (``refine="none"``), each scan's size
-from its robust radius, bad options, a placement flagged likely wrong."""
+from its robust radius, bad options, a placement flagged likely wrong, a planted flip kept out of the graph, the scans
+resting on doubtful edges reported."""
 
 import numpy as np
 import pytest
 
 import rpmnet_jax
-from conftest import DATA, require, ring_scans, synthetic_scans
+from conftest import DATA, cropped_pair, require, ring_scans, rotation_about, synthetic_scans
 from rpmnet_jax.evaluation import pose_errors
 from rpmnet_jax.io import clouds as cloud_io
 from rpmnet_jax.io import poses as scan_poses
-from rpmnet_jax.multiway import scan_alignment
+from rpmnet_jax.multiway import edge_doubt, edges as edges_lib, scan_alignment
 
 BUNNY = DATA / "stanford_bunny"
 
@@ -122,3 +123,39 @@ def test_a_placement_flagged_likely_wrong_is_reported(monkeypatch):
     poses, edges, pending, doubtful = scan_alignment._place_remaining(
         scans, poses, None, None, voxel, 0.05 * radius, lambda fitness, residual: True, 0, lambda *_: None)
     assert pending == [] and doubtful == [1] and np.isfinite(poses).all()
+
+
+def test_a_planted_flip_stays_out_of_the_graph():
+    """Step 2's screen: an answer 90° off the truth is kept out at ``p_wrong >= reject_threshold`` even where the
+    good rule would let it through (here every answer is good); the right answer goes in with its ``p_wrong``."""
+    scans, truth = cropped_pair(0, 1600)
+    turn = np.eye(4)
+    turn[:3, :3] = rotation_about([1.0, 1.0, 0.0], 90.0)
+    right, flip = (edges_lib.measure(scans, 0, 1, t, 0.05, "classical") for t in (truth, truth @ turn))
+    found, p_of = scan_alignment._screened([[right, flip]], 0.05, lambda e: True, reject=True)
+    assert len(found[0]) == 1 and found[0][0] is right and set(p_of) == {id(right)}
+    assert p_of[id(right)] < edge_doubt.load().threshold  # measured 0.03
+    found, p_of = scan_alignment._screened([[right, flip]], 0.05, lambda e: True, reject=False)
+    assert len(found[0]) == 2 and p_of[id(flip)] >= edge_doubt.load().reject_threshold  # measured 1.00
+
+
+def test_scans_resting_on_doubtful_edges_are_reported(monkeypatch):
+    """``likely_wrong`` names the scans whose every path to the anchor crosses a kept edge with ``p_wrong`` at or
+    above the threshold; edges at ``reject_threshold`` and up never enter the graph (unless ``screen_edges`` is
+    off)."""
+    clouds, _ = synthetic_scans()
+    planted = {(0, 1): 0.0, (0, 2): 0.95, (1, 2): 0.6}  # the three candidate pairs, in order
+
+    def p_wrong_of_pairs(answers_per_pair, max_distance, model=None):
+        return [np.full(len(a), planted[(a[0].source, a[0].target)] if a else 0.0) for a in answers_per_pair]
+
+    monkeypatch.setattr(scan_alignment.edge_doubt, "p_wrong_of_pairs", p_wrong_of_pairs)
+    screened = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none"))
+    pairs = {(e.source, e.target) for e in screened.edges + screened.rejected}
+    assert (0, 2) not in pairs and {(0, 1), (1, 2)} <= pairs
+    assert screened.likely_wrong == (2,) and screened.left_out == ()
+    unscreened = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none", screen_edges=False))
+    assert (0, 2) in {(e.source, e.target) for e in unscreened.edges + unscreened.rejected}
+    assert unscreened.likely_wrong == (2,)  # both of its edges are flagged
+    planted[(0, 2)] = 0.1
+    assert rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none")).likely_wrong == ()

@@ -167,7 +167,7 @@ def open3d_scan_pair(src, ref, voxel_size: float, seed: int = 0) -> np.ndarray:
     return _icp_point_to_plane(downs[0], downs[1], init, 1.5 * voxel_size, 1.5 * voxel_size, ICP_ITERATIONS)
 
 
-def open3d_multiway(clouds, voxel_size: float, seed: int = 0) -> np.ndarray:
+def open3d_multiway(clouds, voxel_size: float, seed: int = 0, progress=None) -> np.ndarray:
     """Open3D's multiway registration recipe (its tutorial, with a global start for every pair).
 
     Each scan ``clouds[i] (N_i, 3)`` is voxel-downsampled, gets normals (radius ``2 × voxel``) and FPFH
@@ -175,7 +175,7 @@ def open3d_multiway(clouds, voxel_size: float, seed: int = 0) -> np.ndarray:
     ``1.5 × voxel``, edge-length and distance checkers, 100k iterations, confidence 0.999) and point-to-plane ICP
     (coarse ``15 × voxel``, fine ``1.5 × voxel``); neighbours in the given order are odometry edges, all other
     pairs uncertain loop closures; Levenberg–Marquardt with edge pruning at 0.25. Returns the poses
-    ``(S, 4, 4)`` mapping each scan into the first scan's frame.
+    ``(S, 4, 4)`` mapping each scan into the first scan's frame; ``progress(done, total)`` after each pair.
     """
     import open3d as o3d
     reg = o3d.pipelines.registration
@@ -203,6 +203,8 @@ def open3d_multiway(clouds, voxel_size: float, seed: int = 0) -> np.ndarray:
                 odometry = t @ odometry
                 graph.nodes.append(reg.PoseGraphNode(np.linalg.inv(odometry)))
             graph.edges.append(reg.PoseGraphEdge(i, j, t, info, uncertain=j != i + 1))
+            if progress is not None:
+                progress(len(graph.edges), len(downs) * (len(downs) - 1) // 2)
     reg.global_optimization(graph, reg.GlobalOptimizationLevenbergMarquardt(),
                             reg.GlobalOptimizationConvergenceCriteria(),
                             reg.GlobalOptimizationOption(max_correspondence_distance=fine, edge_prune_threshold=0.25,

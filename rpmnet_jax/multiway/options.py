@@ -19,7 +19,8 @@ class ScanOptions:
     best partners by a cheap overlap estimate (whatever the order of the scans), plus a spanning tree. Pair edges: ``classical`` (FPFH + RANSAC, then a short ICP) on every candidate pair, the
     network on the candidate pairs those leave between separate groups of scans (without ``classical``: the
     network on every candidate pair): ``num_points`` per scan and ``num_iters`` network iterations,
-    ``batch_size`` pairs per call.
+    ``batch_size`` pairs per call. ``screen_edges``: classical answers the edge doubt model finds very likely
+    wrong (``p_wrong`` ≥ 0.9, :mod:`rpmnet_jax.multiway.edge_doubt`) stay out of the pose graph.
     Accepting an edge: fitness ≥ ``min_fitness`` (network and global edges) or ≥ ``min_overlap`` (refinement
     edges), median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (measured on
     the bunny: right answers ≤ 0.06×, wrong ones ≥ 0.13×).
@@ -33,6 +34,7 @@ class ScanOptions:
     """
 
     classical: bool = True  # pair edges
+    screen_edges: bool = True
     num_points: int = 256
     num_iters: int = 3
     batch_size: int = 16

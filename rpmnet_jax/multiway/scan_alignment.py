@@ -14,11 +14,15 @@ Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
    :func:`rpmnet_jax.align` (``init="local"``), in batched calls, then the same short ICP (with
    ``classical=False``, every candidate pair does). An answer is an edge when its fitness is at least
    ``min_fitness`` and its median point-to-plane distance at most ``max_plane_residual`` × the correspondence
-   distance; a pair's distinct answers (a symmetric shape's flip) all go to the graph. On the 10 bunny scans
-   the classical edges connect every scan and the network does not run;
+   distance; a pair's distinct answers (a symmetric shape's flip) all go to the graph, less the classical answers
+   the edge doubt model (:mod:`rpmnet_jax.multiway.edge_doubt`) finds very likely wrong (``p_wrong`` ≥ its
+   ``reject_threshold``, 0.9; ``screen_edges``). On the 10 bunny scans the classical edges connect every scan and
+   the network does not run;
 3. robust pose graph (:mod:`rpmnet_jax.multiway.pose_graph`: a consensus spanning tree, GTSAM's
    Levenberg–Marquardt with a Cauchy kernel, edges beyond the χ² bound rejected) over those edges; wrong
-   edges (a flipped pair) are rejected. The largest component of the kept edges is placed;
+   edges (a flipped pair) are rejected. The largest component of the kept edges is placed; its scans whose every
+   path to the anchor crosses a kept classical edge with ``p_wrong`` ≥ the model's ``threshold`` (0.5: more likely
+   wrong than right) are reported in ``likely_wrong``;
 4. global: each scan outside it is registered onto the merged, placed scans by :func:`rpmnet_jax.align` with
    ``init="global"`` (rotation hypotheses covering every orientation, one batched call); placed when its
    fitness is at least ``min_fitness``, else left out with a warning (it overlaps nothing); a placement
@@ -46,8 +50,8 @@ import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
 from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, scoring
-from rpmnet_jax.multiway import candidate_pairs, edges as edges_lib, joint_refine, options as options_lib, pair_engine
-from rpmnet_jax.multiway import pose_graph
+from rpmnet_jax.multiway import candidate_pairs, edge_doubt, edges as edges_lib, joint_refine, options as options_lib
+from rpmnet_jax.multiway import pair_engine, pose_graph
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment
 from rpmnet_jax.weights import loading
@@ -73,7 +77,8 @@ class ScanAlignment(NamedTuple):
     max_correspondence_distance: float  # caller's units
     timings: dict  # seconds per stage that ran: prepare, candidates, classical, network (each with its short ICP),
     # graph, global, refine; total
-    likely_wrong: tuple = ()  # placed scans whose placement by ``align`` (step 4) was flagged ``likely_wrong``
+    likely_wrong: tuple = ()  # placed scans whose pose rests on a likely wrong pair edge (step 3) or whose placement
+    # by ``align`` (step 4) was flagged ``likely_wrong``
     pairs: dict = {}  # pairs registered per stage: classical, network, global (placements), refine (pairs refined)
 
 
@@ -104,6 +109,26 @@ def _prepare_scans(clouds, normals, voxel_size):
         scans.append(edges_lib.make_scan(p, n if n is not None else normals_lib.estimate_normals(p),
                                          FEATURE_RADIUS * float(np.median(radii)), seed=i))
     return scans, voxel, float(np.median(radii))
+
+
+def _screened(answers_per_pair, max_dist: float, good, reject: bool):
+    """Step 2's classical answers of each pair through the edge doubt model: (the good answers of each pair,
+    less those with ``p_wrong ≥ reject_threshold`` when ``reject``; ``{id(edge): p_wrong}`` of those)."""
+    model = edge_doubt.load()
+    found, p_of = [], {}
+    for answers, p in zip(answers_per_pair, edge_doubt.p_wrong_of_pairs(answers_per_pair, max_dist, model)):
+        kept = [(e, float(q)) for e, q in zip(answers, p) if good(e) and not (reject and q >= model.reject_threshold)]
+        found.append([e for e, _ in kept])
+        p_of.update((id(e), q) for e, q in kept)
+    return found, p_of
+
+
+def _resting_on_doubt(num_scans: int, kept_edges, p_of: dict, anchor: int) -> list:
+    """The scans whose every path to ``anchor`` over ``kept_edges`` crosses one with ``p_wrong`` (``p_of``, by
+    ``id``; edges not in it are not flagged) at or above the edge doubt model's ``threshold``."""
+    flagged = [p_of.get(id(e), 0.0) >= edge_doubt.load().threshold for e in kept_edges]
+    pairs = [(e.source, e.target) for e in kept_edges]
+    return np.flatnonzero(edge_doubt.resting_on_flagged(num_scans, pairs, flagged, anchor)).tolist()
 
 
 def _edge_information(info: np.ndarray, rot_sigma: float, trans_sigma: float) -> np.ndarray:
@@ -249,14 +274,14 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     def good(e, fitness):
         return e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
 
-    counts = {}
+    counts, p_of = {}, {}
     with clock.stage("candidates"):
         pairs = _candidate_pairs(scans, o.all_pairs_up_to, o.neighbours, o.seed)
     edges, weak = [], pairs  # without classical edges, every candidate pair goes through the network
     if o.classical:
-        with clock.stage("classical"):  # 2. every candidate pair: FPFH + RANSAC, a short ICP
-            found = [[e for e in answers if good(e, o.min_fitness)] for answers in engine.classical_edges(
-                pairs, ticker("classical edges"))]
+        with clock.stage("classical"):  # 2. every candidate pair: FPFH + RANSAC, a short ICP; the edge doubt
+            found, p_of = _screened(engine.classical_edges(pairs, ticker("classical edges")), max_dist,
+                                    lambda e: good(e, o.min_fitness), o.screen_edges)
             counts["classical"] = len(pairs)
             edges = [e for answers in found for e in answers]  # a symmetric pair's answers: the graph chooses
         labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
@@ -266,13 +291,14 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
             edges += [e for e in engine.network_edges(weak, ticker("network edges")) if good(e, o.min_fitness)]
             counts["network"] = len(weak)
 
-    rejected = []  # 3. robust pose graph over them: the largest consistent component is placed
+    rejected, resting = [], []  # 3. robust pose graph over them: the largest consistent component is placed
     poses = np.full((num_scans, 4, 4), np.nan)
     poses[0] = np.eye(4)
     if edges:
         with clock.stage("graph"):
-            poses, edges, rejected = _solve(num_scans, edges, _largest_component(num_scans, edges), network_noise,
-                                            o.seed)
+            anchor = _largest_component(num_scans, edges)
+            poses, edges, rejected = _solve(num_scans, edges, anchor, network_noise, o.seed)
+            resting = _resting_on_doubt(num_scans, edges, p_of, anchor)
 
     global_edges, doubtful = [], []
     pending = [s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0])]
@@ -320,4 +346,4 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     first = min(s for s in range(num_scans) if s not in left_out)
     poses = np.linalg.inv(poses[first]) @ poses  # NaN rows stay NaN
     return ScanAlignment(poses, tuple(final_edges), tuple(rejected + final_rejected), left_out, voxel, max_dist,
-                         clock.timings(), tuple(s for s in doubtful if s not in left_out), counts)
+                         clock.timings(), tuple(sorted(set(resting + doubtful) - set(left_out))), counts)
