@@ -51,9 +51,9 @@ def outcome(records, p, *, threshold: float, reject_at: float | None = None, wei
     truth = _truth_to(records, anchor)
     placed = [s for s in range(num_scans) if np.isfinite(poses[s, 0, 0])]
     off = {s: records_lib.rotation_error_deg(poses[s], truth[s]) > edge_doubt.WRONG_DEG for s in placed}
-    flagged = np.array([q >= threshold for _, _, q in chosen])[kept_mask]
-    resting = edge_doubt.resting_on_flagged(num_scans, [(e.source, e.target) for e in kept], flagged, anchor)
+    p_of = {id(e): q for e, (_, _, q) in zip(edges, chosen)}
+    resting = scan_alignment._resting_on_doubt(num_scans, kept, p_of, anchor, threshold)  # as align_scans reports
     w = np.array([w for _, w, _ in chosen], bool)
     return {**counts, "wrong_kept": int((w & kept_mask).sum()), "right_kept": int((~w & kept_mask).sum()),
-            "placed": len(placed), "wrong_poses": int(sum(off.values())), "resting": int(resting.sum()),
-            "resting_wrong": int(sum(off[s] for s in placed if resting[s]))}
+            "placed": len(placed), "wrong_poses": int(sum(off.values())), "resting": len(resting),
+            "resting_wrong": int(sum(off[s] for s in resting))}

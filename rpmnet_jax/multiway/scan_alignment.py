@@ -123,10 +123,11 @@ def _screened(answers_per_pair, max_dist: float, good, reject: bool):
     return found, p_of
 
 
-def _resting_on_doubt(num_scans: int, kept_edges, p_of: dict, anchor: int) -> list:
+def _resting_on_doubt(num_scans: int, kept_edges, p_of: dict, anchor: int, threshold: float | None = None) -> list:
     """The scans whose every path to ``anchor`` over ``kept_edges`` crosses one with ``p_wrong`` (``p_of``, by
-    ``id``; edges not in it are not flagged) at or above the edge doubt model's ``threshold``."""
-    flagged = [p_of.get(id(e), 0.0) >= edge_doubt.load().threshold for e in kept_edges]
+    ``id``; edges not in it are not flagged) at or above ``threshold`` (default the edge doubt model's)."""
+    threshold = edge_doubt.load().threshold if threshold is None else threshold
+    flagged = [p_of.get(id(e), 0.0) >= threshold for e in kept_edges]
     pairs = [(e.source, e.target) for e in kept_edges]
     return np.flatnonzero(edge_doubt.resting_on_flagged(num_scans, pairs, flagged, anchor)).tolist()
 
