@@ -150,7 +150,7 @@ def test_scans_resting_on_doubtful_edges_are_reported(monkeypatch):
         return [np.full(len(a), planted[(a[0].source, a[0].target)] if a else 0.0) for a in answers_per_pair]
 
     monkeypatch.setattr(scan_alignment.edge_doubt, "p_wrong_of_pairs", p_wrong_of_pairs)
-    screened = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none"))
+    screened = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none", screen_edges=True))
     pairs = {(e.source, e.target) for e in screened.edges + screened.rejected}
     assert (0, 2) not in pairs and {(0, 1), (1, 2)} <= pairs
     assert screened.likely_wrong == (2,) and screened.left_out == ()
@@ -158,4 +158,5 @@ def test_scans_resting_on_doubtful_edges_are_reported(monkeypatch):
     assert (0, 2) in {(e.source, e.target) for e in unscreened.edges + unscreened.rejected}
     assert unscreened.likely_wrong == (2,)  # both of its edges are flagged
     planted[(0, 2)] = 0.1
-    assert rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none")).likely_wrong == ()
+    assert rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none", screen_edges=True)
+                                  ).likely_wrong == ()

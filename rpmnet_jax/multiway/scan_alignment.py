@@ -16,7 +16,7 @@ Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
    ``min_fitness`` and its median point-to-plane distance at most ``max_plane_residual`` × the correspondence
    distance; a pair's distinct answers (a symmetric shape's flip) all go to the graph, less the classical answers
    the edge doubt model (:mod:`rpmnet_jax.multiway.edge_doubt`) finds very likely wrong (``p_wrong`` ≥ its
-   ``reject_threshold``, 0.9; ``screen_edges``). On the 10 bunny scans the classical edges connect every scan and
+   ``reject_threshold``, 0.9; with ``screen_edges``, off by default). On the 10 bunny scans the classical edges connect every scan and
    the network does not run;
 3. robust pose graph (:mod:`rpmnet_jax.multiway.pose_graph`: a consensus spanning tree, GTSAM's
    Levenberg–Marquardt with a Cauchy kernel, edges beyond the χ² bound rejected) over those edges; wrong
