@@ -120,6 +120,21 @@ def test_synthetic_normals_agree_with_estimated():
         assert np.linalg.norm(xyz, axis=1).max() <= 1 + 1e-5
 
 
+def test_ring_views_are_partial_sides_each_in_its_own_frame():
+    world = synthetic.sample_shape(np.random.default_rng(1), 2, 3000)[:, :3].astype(np.float64) * 0.1
+    world -= world.mean(0)
+    clouds, poses = synthetic.ring_views(world, 5)
+    assert poses.shape == (5, 4, 4) and np.allclose(poses[0], np.eye(4)) and len(clouds) == 5
+    for k, (c, pose) in enumerate(zip(clouds, poses)):
+        back = c @ pose[:3, :3].T + pose[:3, 3]  # into the world frame: exactly the world's points of that side
+        side = world[world[:, :2] @ [np.cos(2 * np.pi * k / 5), np.sin(2 * np.pi * k / 5)] > -0.01]
+        np.testing.assert_allclose(back, side, atol=1e-12)
+        assert 0.3 * len(world) < len(c) < 0.8 * len(world)
+        if k:
+            assert not np.allclose(c, side)  # moved out of the world frame
+        np.testing.assert_allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-12)
+
+
 def test_make_synthetic_cli(tmp_path):
     subprocess.run([sys.executable, "-m", "experiments.make_synthetic", "--out", str(tmp_path), "--num-train", "4",
                     "--num-test", "3"], check=True, capture_output=True, cwd=os.path.dirname(os.path.dirname(__file__)))

@@ -43,16 +43,19 @@ def test_lever_finds_the_points_centre_and_spread_from_the_information_alone():
 
 
 def test_features_read_the_pairs_other_answers():
-    best, flip = _edge(0.0, 0.8), _edge(180.0, 0.6)
+    best, flip = _edge(0.0, 0.8), _edge(180.0, 0.6, rmse=0.03)
     f = dict(zip(edge_doubt.FEATURES, edge_doubt.features(flip, MAX_DISTANCE, [best, flip])))
     assert f["rank"] == 1.0 and f["other_fitness"] == 0.8 and f["fitness_margin"] == pytest.approx(-0.2)
     assert f["other_gap"] == pytest.approx(1.0) and f["distinct"] == pytest.approx(np.log1p(2))
-    assert f["plane"] == pytest.approx(0.04) and f["rmse"] == pytest.approx(0.4) and f["good"] == 1.0
+    assert f["plane"] == pytest.approx(0.04) and f["rmse"] == pytest.approx(0.6) and f["good"] == 1.0
+    assert f["rmse_excess"] == pytest.approx(0.2) and f["rmse_margin"] == pytest.approx(0.2)
     g = dict(zip(edge_doubt.FEATURES, edge_doubt.features(best, MAX_DISTANCE, [best, flip])))
     assert g["rank"] == 0.0 and g["fitness_margin"] == pytest.approx(0.2)
+    assert g["rmse_excess"] == 0.0 and g["rmse_margin"] == pytest.approx(-0.2)
     alone = dict(zip(edge_doubt.FEATURES, edge_doubt.features(best, MAX_DISTANCE)))
     assert alone["other_fitness"] == 0.0 and alone["other_gap"] == 0.0 and alone["distinct"] == pytest.approx(
         np.log1p(1))
+    assert alone["rmse_excess"] == 0.0 and alone["rmse_margin"] == 0.0
     assert dict(zip(edge_doubt.FEATURES, edge_doubt.features(_edge(plane=0.01), MAX_DISTANCE)))["good"] == 0.0
 
 

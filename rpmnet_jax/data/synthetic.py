@@ -134,6 +134,26 @@ def sample_shape(rng: np.random.Generator, label: int, n: int = 2048) -> np.ndar
     return np.concatenate([xyz @ rot.T, normals @ rot.T], -1).astype(np.float32)
 
 
+def ring_views(world, count: int) -> tuple[list, np.ndarray]:
+    """``count`` partial views ``(N_i, 3)`` of the centred points ``world (N, 3)`` (~0.2 across), each the side
+    seen from a direction ``360°/count`` further round the z axis, in its own frame (rotated by up to ~``3
+    count``°, moved by a few mm), and their poses ``(count, 4, 4)`` (view → world): neighbours overlap most, every
+    view overlaps the next. Made for scan-set tests and for fitting the edge doubt model."""
+    from scipy.spatial.transform import Rotation
+
+    world = np.asarray(world, np.float64)
+    clouds, poses = [], []
+    for k in range(count):
+        angle = 2 * np.pi * k / count
+        pose = np.eye(4)
+        pose[:3, :3] = Rotation.from_euler("xyz", [2 * k, 3 * k, -2 * k], degrees=True).as_matrix()
+        pose[:3, 3] = [0.004 * k, -0.002 * k, 0.003 * k]
+        keep = world[:, :2] @ [np.cos(angle), np.sin(angle)] > -0.01
+        clouds.append((world[keep] - pose[:3, 3]) @ pose[:3, :3])
+        poses.append(pose)
+    return clouds, np.stack(poses)
+
+
 def make_split(num: int, seed: int, n: int = 2048) -> tuple[np.ndarray, np.ndarray]:
     """``num`` shapes ``(num, n, 6)`` cycling through the 40 categories, and their labels."""
     labels = np.arange(num) % len(CATEGORY_NAMES)

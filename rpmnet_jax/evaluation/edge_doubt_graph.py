@@ -41,17 +41,18 @@ def outcome(records, p, *, threshold: float, reject_at: float | None = None, wei
     if not chosen:
         return {**counts, "wrong_kept": 0, "right_kept": 0, "placed": 0, "wrong_poses": 0, "resting": 0,
                 "resting_wrong": 0}
-    edges = [e._replace(fitness=e.fitness * (1.0 - q)) if weigh else e for e, _, q in chosen]
+    edges = [e for e, _, _ in chosen]
+    p_of = {id(e): q for e, (_, _, q) in zip(edges, chosen)}
     noise = tuple(scan_alignment.NETWORK_NOISE_SCALE * x for x in (np.radians(o.edge_sigma_deg),
                                                                    o.edge_sigma_fraction * max_dist))
     anchor = scan_alignment._largest_component(num_scans, edges)
-    poses, kept, _ = scan_alignment._solve(num_scans, edges, anchor, noise, o.seed)
+    poses, kept, _ = scan_alignment._solve(num_scans, edges, anchor, noise, o.seed,
+                                           scan_alignment._doubt_weights(edges, p_of) if weigh else None)
     kept_ids = {id(e) for e in kept}
     kept_mask = np.array([id(e) in kept_ids for e in edges])
     truth = _truth_to(records, anchor)
     placed = [s for s in range(num_scans) if np.isfinite(poses[s, 0, 0])]
     off = {s: records_lib.rotation_error_deg(poses[s], truth[s]) > edge_doubt.WRONG_DEG for s in placed}
-    p_of = {id(e): q for e, (_, _, q) in zip(edges, chosen)}
     resting = scan_alignment._resting_on_doubt(num_scans, kept, p_of, anchor, threshold)  # as align_scans reports
     w = np.array([w for _, w, _ in chosen], bool)
     return {**counts, "wrong_kept": int((w & kept_mask).sum()), "right_kept": int((~w & kept_mask).sum()),

@@ -5,9 +5,10 @@ model (:func:`p_wrong`); and which scans' poses rest on flagged edges (:func:`re
 The model (``rpmnet_jax/weights/edge_doubt.json``: logistic regression over standardised :data:`FEATURES`, Platt
 scaling, the same form as the one-pair model of :mod:`rpmnet_jax.pairwise.doubt`) is fitted offline by
 ``experiments/fit_edge_doubt.py`` on classical edges (``edges.classical_edges``) of simulated range scans of
-training meshes; here it is plain NumPy. It reads an edge and never changes it. Its two bars: ``threshold`` (0.5,
-likely wrong; the per-scan report) and ``reject_threshold`` (0.9, keep the edge out of the graph); measured in
-``docs/model_card.md``.
+training meshes and of rings of views of synthetic shapes; here it is plain NumPy. It reads an edge and never
+changes it; ``align_scans`` ranks its pose graph's consensus by fitness × (1 − ``p_wrong``). Its two bars:
+``threshold`` (0.5, likely wrong; the per-scan report) and ``reject_threshold`` (0.95, keep the edge out of the
+graph with ``ScanOptions.edge_doubt="reject"``); measured in ``docs/model_card.md``.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from rpmnet_jax.pairwise import doubt
 
 WRONG_DEG = doubt.WRONG_DEG  # an edge is wrong when its rotation is more than this far from the truth
 FEATURES = ("fitness", "plane", "rmse", "good", "conditioning", "rotation_conditioning", "translation_conditioning",
-            "distinct", "rank", "other_fitness", "fitness_margin", "other_gap")
+            "distinct", "rank", "other_fitness", "fitness_margin", "other_gap", "rmse_excess", "rmse_margin")
 MODEL_PATH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "weights", "edge_doubt.json")
 _DEFAULTS = options_lib.ScanOptions()  # the "good" feature: align_scans' default rule for a pair edge
 
@@ -51,14 +52,16 @@ def features(edge, max_distance: float, answers=()) -> np.ndarray:
     """The :data:`FEATURES` ``(F,)`` of ``edge`` (an :class:`~rpmnet_jax.multiway.edges.Edge`, or anything with
     its ``transform``, ``fitness``, ``inlier_rmse``, ``information``, ``plane_residual``) measured within
     ``max_distance``; ``answers``: all distinct answers of its pair (``edges.classical_edges``, before the good
-    rule; the edge among them or not), which give its rank by fitness, the best other answer's fitness and the
-    nearest other answer's rotation gap."""
+    rule; the edge among them or not), which give its rank by fitness, the best other answer's fitness, the
+    nearest other answer's rotation gap and how far its inlier RMSE lies above the pair's lowest (a symmetric
+    shape's flip can overlap more than the right answer, but its inliers lie farther apart)."""
     d = float(max_distance)
     t = np.asarray(edge.transform, np.float64)
     others = [a for a in answers if not np.array_equal(np.asarray(a.transform, np.float64), t)]
     other_fit = max((float(a.fitness) for a in others), default=0.0)
     gap = min((float(se3.rotation_angle_deg(np.asarray(a.transform, np.float64)[:3, :3] @ t[:3, :3].T))
                for a in others), default=0.0)
+    other_rmse = min((float(a.inlier_rmse) for a in others), default=float(edge.inlier_rmse))
     plane = min(float(edge.plane_residual) / d, 1.0)  # inf without pairs
     cond = doubt.conditioning(edge.information, *lever(edge.information))
     values = {
@@ -68,7 +71,9 @@ def features(edge, max_distance: float, answers=()) -> np.ndarray:
         "translation_conditioning": cond[2] / 12.0,
         "distinct": float(np.log1p(len(others) + 1)),
         "rank": float(sum(float(a.fitness) > float(edge.fitness) for a in others)),
-        "other_fitness": other_fit, "fitness_margin": float(edge.fitness) - other_fit, "other_gap": gap / 180.0}
+        "other_fitness": other_fit, "fitness_margin": float(edge.fitness) - other_fit, "other_gap": gap / 180.0,
+        "rmse_excess": max(float(edge.inlier_rmse) - other_rmse, 0.0) / d,
+        "rmse_margin": (float(edge.inlier_rmse) - other_rmse) / d}
     return np.array([values[k] for k in FEATURES])
 
 

@@ -7,6 +7,7 @@ import dataclasses
 from rpmnet_jax import input_checks as checks
 
 REFINES = ("icp", "joint", "none")
+EDGE_DOUBTS = ("weigh", "reject", "off")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -19,8 +20,10 @@ class ScanOptions:
     best partners by a cheap overlap estimate (whatever the order of the scans), plus a spanning tree. Pair edges: ``classical`` (FPFH + RANSAC, then a short ICP) on every candidate pair, the
     network on the candidate pairs those leave between separate groups of scans (without ``classical``: the
     network on every candidate pair): ``num_points`` per scan and ``num_iters`` network iterations,
-    ``batch_size`` pairs per call. ``screen_edges``: classical answers the edge doubt model finds very likely
-    wrong (``p_wrong`` ≥ 0.9, :mod:`rpmnet_jax.multiway.edge_doubt`) stay out of the pose graph.
+    ``batch_size`` pairs per call. ``edge_doubt`` (:mod:`rpmnet_jax.multiway.edge_doubt`): ``"weigh"`` ranks the
+    classical answers in the pose graph's consensus by fitness × (1 − ``p_wrong``), ``"reject"`` also keeps out
+    those at ``p_wrong`` ≥ the model's ``reject_threshold``, ``"off"`` ranks by fitness alone; the report of scans
+    resting on likely wrong edges is made in every case.
     Accepting an edge: fitness ≥ ``min_fitness`` (network and global edges) or ≥ ``min_overlap`` (refinement
     edges), median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (measured on
     the bunny: right answers ≤ 0.06×, wrong ones ≥ 0.13×).
@@ -34,7 +37,7 @@ class ScanOptions:
     """
 
     classical: bool = True  # pair edges
-    screen_edges: bool = False  # on: a symmetric ring of test scans ended 180° off (tests/joint_refine_test.py)
+    edge_doubt: str = "weigh"
     num_points: int = 256
     num_iters: int = 3
     batch_size: int = 16
@@ -64,3 +67,4 @@ class ScanOptions:
         for name in ("min_fitness", "min_overlap"):
             checks.require_fraction(f"ScanOptions.{name}", getattr(self, name))
         checks.require_choice("ScanOptions.refine", self.refine, REFINES)
+        checks.require_choice("ScanOptions.edge_doubt", self.edge_doubt, EDGE_DOUBTS)

@@ -14,11 +14,13 @@ Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
    :func:`rpmnet_jax.align` (``init="local"``), in batched calls, then the same short ICP (with
    ``classical=False``, every candidate pair does). An answer is an edge when its fitness is at least
    ``min_fitness`` and its median point-to-plane distance at most ``max_plane_residual`` × the correspondence
-   distance; a pair's distinct answers (a symmetric shape's flip) all go to the graph, less the classical answers
-   the edge doubt model (:mod:`rpmnet_jax.multiway.edge_doubt`) finds very likely wrong (``p_wrong`` ≥ its
-   ``reject_threshold``, 0.9; with ``screen_edges``, off by default). On the 10 bunny scans the classical edges connect every scan and
-   the network does not run;
-3. robust pose graph (:mod:`rpmnet_jax.multiway.pose_graph`: a consensus spanning tree, GTSAM's
+   distance; a pair's distinct answers (a symmetric shape's flip) all go to the graph, each classical answer with
+   its ``p_wrong`` from the edge doubt model (:mod:`rpmnet_jax.multiway.edge_doubt`; with
+   ``edge_doubt="reject"``, those at ``p_wrong`` ≥ its ``reject_threshold`` stay out). On the 10 bunny scans the
+   classical edges connect every scan and the network does not run;
+3. robust pose graph (:mod:`rpmnet_jax.multiway.pose_graph`: a consensus spanning tree whose edges are ranked by
+   fitness × (1 − ``p_wrong``) (``edge_doubt="weigh"``, the default; a symmetric shape's flip often overlaps
+   more than the right answer, and its ``p_wrong`` is what tells them apart), GTSAM's
    Levenberg–Marquardt with a Cauchy kernel, edges beyond the χ² bound rejected) over those edges; wrong
    edges (a flipped pair) are rejected. The largest component of the kept edges is placed; its scans whose every
    path to the anchor crosses a kept classical edge with ``p_wrong`` ≥ the model's ``threshold`` (0.5: more likely
@@ -138,14 +140,19 @@ def _edge_information(info: np.ndarray, rot_sigma: float, trans_sigma: float) ->
     return c_inv - c_inv @ np.linalg.solve(info + c_inv, c_inv)
 
 
-def _solve(num_scans, edges, anchor, noise, seed):
-    """Robust pose graph of ``edges``: (poses, NaN off the anchor's component of the kept edges; kept edges of
-    that component; rejected edges)."""
+def _doubt_weights(edges, p_of: dict) -> list:
+    """``[fitness × (1 − p_wrong), ...]`` of ``edges`` (``p_of``: by ``id``; edges not in it count as sure)."""
+    return [e.fitness * (1.0 - p_of.get(id(e), 0.0)) for e in edges]
+
+
+def _solve(num_scans, edges, anchor, noise, seed, weights=None):
+    """Robust pose graph of ``edges``, its consensus ranking them by ``weights`` (default their fitness): (poses,
+    NaN off the anchor's component of the kept edges; kept edges of that component; rejected edges)."""
     pairs = [(e.source, e.target) for e in edges]
     used = pose_graph.component(num_scans, pairs, anchor)
     info = [_edge_information(e.information, *noise) for e in edges]
     sol = pose_graph.optimize(num_scans, pairs, [e.transform for e in edges], info, anchor,
-                              weights=[e.fitness for e in edges], seed=seed)
+                              weights=[e.fitness for e in edges] if weights is None else weights, seed=seed)
     rejected = [e for e, ok in zip(edges, sol.inlier) if used[e.source] and not ok]
     kept = [e for e, ok in zip(edges, sol.inlier) if ok]
     nodes = pose_graph.component(num_scans, [(e.source, e.target) for e in kept], anchor)
@@ -282,7 +289,7 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     if o.classical:
         with clock.stage("classical"):  # 2. every candidate pair: FPFH + RANSAC, a short ICP; the edge doubt
             found, p_of = _screened(engine.classical_edges(pairs, ticker("classical edges")), max_dist,
-                                    lambda e: good(e, o.min_fitness), o.screen_edges)
+                                    lambda e: good(e, o.min_fitness), o.edge_doubt == "reject")
             counts["classical"] = len(pairs)
             edges = [e for answers in found for e in answers]  # a symmetric pair's answers: the graph chooses
         labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
@@ -298,7 +305,8 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     if edges:
         with clock.stage("graph"):
             anchor = _largest_component(num_scans, edges)
-            poses, edges, rejected = _solve(num_scans, edges, anchor, network_noise, o.seed)
+            poses, edges, rejected = _solve(num_scans, edges, anchor, network_noise, o.seed,
+                                            None if o.edge_doubt == "off" else _doubt_weights(edges, p_of))
             resting = _resting_on_doubt(num_scans, edges, p_of, anchor)
 
     global_edges, doubtful = [], []
