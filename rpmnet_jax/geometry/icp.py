@@ -29,11 +29,12 @@ boxy shapes 5–8° off; on the Stanford bunny's scans the full gate biased pair
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
-from rpmnet_jax.ops import se3
 from rpmnet_jax.geometry import cloud, kdtree
 
 
@@ -64,26 +65,117 @@ REFINE_EDGE = Schedule((1.0, 0.5), 30)  # align_scans' refinement rounds, from c
 # biased bunny edges by up to 1.3 deg)
 GATE_MEDIANS = 3.0  # every gate: this many median nearest-neighbour distances, within the stage's bounds
 FINE_FLOOR = 0.25  # a fine stage's gate goes down to this share of its scale (dense, clean range scans)
+SMALL_ANGLE = float(np.finfo(np.float64).eps) ** 0.5  # |ω|² below which Rodrigues' coefficients are series
 
 
-def _pairs(tree: kdtree.KdTree, moved: np.ndarray, max_distance: float, scale: float, neighbours: int
+@numba.njit(cache=True)
+def _moved(transform, src):
+    """``src (N, 3)`` mapped by ``transform (4, 4)``."""
+    out = np.empty_like(src)
+    for i in range(len(src)):
+        for r in range(3):
+            out[i, r] = (transform[r, 0] * src[i, 0] + transform[r, 1] * src[i, 1] + transform[r, 2] * src[i, 2]
+                         + transform[r, 3])
+    return out
+
+
+def _query(tree: kdtree.KdTree, moved: np.ndarray, max_distance: float, scale: float, neighbours: int
            ) -> tuple[np.ndarray, np.ndarray, float]:
-    """``(source rows (P,), reference rows (P,), gate)``: the ``neighbours`` nearest reference points within
-    the gate of each moved source point. The gate is ``GATE_MEDIANS`` median nearest-neighbour distances,
-    between ``max_distance`` and ``scale × max_distance`` in a coarse stage (``scale > 1``: wide while the
-    clouds lie apart, the finest gate once they lie on each other), between ``FINE_FLOOR × scale ×
-    max_distance`` and ``scale × max_distance`` in a fine one (narrower only for clouds much denser and less
-    noisy than ``max_distance`` assumes), there over the source points with a partner within ``scale ×
-    max_distance`` only: the part that does not overlap (half of a pair of range scans 90° apart) says
-    nothing of the noise."""
+    """``(distances (Q, K), reference rows (Q, K), gate)``: the ``neighbours`` nearest reference points of each
+    moved source point within ``scale × max_distance`` (beyond: ``inf``), and the stage's gate. The gate is
+    ``GATE_MEDIANS`` median nearest-neighbour distances, between ``max_distance`` and ``scale × max_distance`` in
+    a coarse stage (``scale > 1``: wide while the clouds lie apart, the finest gate once they lie on each other),
+    between ``FINE_FLOOR × scale × max_distance`` and ``scale × max_distance`` in a fine one (narrower only for
+    clouds much denser and less noisy than ``max_distance`` assumes), there over the source points with a partner
+    within ``scale × max_distance`` only: the part that does not overlap (half of a pair of range scans 90° apart)
+    says nothing of the noise."""
     ceiling = scale * max_distance
-    floor = max_distance if scale > 1.0 else FINE_FLOOR * ceiling
+    coarse = scale > 1.0
     dist, idx = tree.query(moved, k=neighbours, distance_upper_bound=ceiling)
-    dist, idx = dist.reshape(len(moved), -1), idx.reshape(len(moved), -1)
-    nearest = dist[:, 0] if scale > 1.0 else dist[np.isfinite(dist[:, 0]), 0]  # fine: the overlap's own
-    gate = float(np.clip(GATE_MEDIANS * np.median(nearest), floor, ceiling)) if len(nearest) else ceiling
-    rows, slot = np.nonzero(dist <= gate)
-    return rows, idx[rows, slot], gate
+    dist, idx = dist.reshape(len(moved), neighbours), idx.reshape(len(moved), neighbours)
+    return dist, idx, _gate(dist, max_distance if coarse else FINE_FLOOR * ceiling, ceiling, coarse)
+
+
+@numba.njit(cache=True)
+def _gate(dist, floor, ceiling, coarse):
+    """``GATE_MEDIANS`` median nearest distances (``dist[:, 0]`` of ``dist (Q, K)``) within ``[floor, ceiling]``,
+    over every query when ``coarse``, else over those with a partner within ``ceiling``; ``ceiling`` when there
+    is none."""
+    nearest = np.empty(len(dist))
+    m = 0
+    for i in range(len(dist)):
+        if coarse or np.isfinite(dist[i, 0]):
+            nearest[m] = dist[i, 0]
+            m += 1
+    if m == 0:
+        return ceiling
+    return min(max(GATE_MEDIANS * np.median(nearest[:m]), floor), ceiling)
+
+
+@numba.njit(cache=True)
+def _step(moved, ref, normals, src_normals, transform, dist, idx, gate, symmetric):
+    """One linearised, Tukey-weighted point-to-plane solve over the pairs ``dist, idx (Q, K)`` within ``gate``
+    (on the symmetric planes, weighted by ``cos²`` of the normal lines' angle, when ``symmetric``): ``(the
+    step (4, 4), |ω|, |v|, pairs)``; the identity and no pairs below ``MIN_PAIRS``."""
+    a = np.zeros((6, 6))
+    b = np.zeros(6)
+    jac = np.empty(6)
+    pairs = 0
+    for i in range(len(dist)):
+        for k in range(dist.shape[1]):
+            if not dist[i, k] <= gate:
+                continue
+            pairs += 1
+            j = idx[i, k]
+            px, py, pz = moved[i, 0], moved[i, 1], moved[i, 2]
+            nx, ny, nz = normals[j, 0], normals[j, 1], normals[j, 2]
+            agreement = 1.0
+            if symmetric:  # the symmetric plane: both normal lines, signs made to agree
+                mx = transform[0, 0] * src_normals[i, 0] + transform[0, 1] * src_normals[i, 1] + transform[0, 2] * src_normals[i, 2]
+                my = transform[1, 0] * src_normals[i, 0] + transform[1, 1] * src_normals[i, 1] + transform[1, 2] * src_normals[i, 2]
+                mz = transform[2, 0] * src_normals[i, 0] + transform[2, 1] * src_normals[i, 1] + transform[2, 2] * src_normals[i, 2]
+                cos = mx * nx + my * ny + mz * nz
+                sign = -1.0 if cos < 0 else 1.0
+                nx, ny, nz = nx + sign * mx, ny + sign * my, nz + sign * mz
+                norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+                nx, ny, nz = nx / norm, ny / norm, nz / norm
+                agreement = cos * cos
+            r = (px - ref[j, 0]) * nx + (py - ref[j, 1]) * ny + (pz - ref[j, 2]) * nz
+            u = min(abs(r) / gate, 1.0)
+            w = (1.0 - u * u) ** 2 * agreement
+            jac[0], jac[1], jac[2] = py * nz - pz * ny, pz * nx - px * nz, px * ny - py * nx  # d r / d (ω, v)
+            jac[3], jac[4], jac[5] = nx, ny, nz
+            for c in range(6):
+                wc = w * jac[c]
+                b[c] -= wc * r
+                for d in range(c, 6):
+                    a[c, d] += wc * jac[d]
+    step = np.eye(4)
+    if pairs < MIN_PAIRS:
+        return step, 0.0, 0.0, pairs
+    trace = 0.0
+    for c in range(6):
+        trace += a[c, c]
+        for d in range(c):
+            a[c, d] = a[d, c]
+    for c in range(6):
+        a[c, c] += DAMPING * max(trace, 1e-12)
+    x = np.linalg.solve(a, b)
+    wx, wy, wz = x[0], x[1], x[2]
+    t = wx * wx + wy * wy + wz * wz
+    if t < SMALL_ANGLE:  # Rodrigues' coefficients by their Taylor series (as ops.se3.exp)
+        ca, cb = 1 - t / 6 + t * t / 120, 0.5 - t / 24 + t * t / 720
+    else:
+        theta = math.sqrt(t)
+        half = math.sin(0.5 * theta)
+        ca, cb = math.sin(theta) / theta, 2 * half * half / t
+    k = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
+    k2 = k @ k
+    for r in range(3):
+        for c in range(3):
+            step[r, c] += ca * k[r, c] + cb * k2[r, c]
+        step[r, 3] = x[3 + r]
+    return step, math.sqrt(t), math.sqrt(x[3] * x[3] + x[4] * x[4] + x[5] * x[5]), pairs
 
 
 def tukey_weights(residuals: np.ndarray, scale: float) -> np.ndarray:
@@ -119,34 +211,19 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
     radius = max(cloud.radius(src), 1e-12)
     transform = np.array(init, np.float64)
     total, converged = 0, True
+    empty = np.zeros((0, 3))
     for scale in scales:
         stage_done, fine = False, scale <= 1.0
         for _ in range(max_iterations):
             total += 1
-            moved = se3.apply(transform, src)
-            rows, cols, gate = _pairs(tree, moved, max_distance, scale, neighbours if fine else 1)
-            if len(rows) < MIN_PAIRS:
+            moved = _moved(transform, src)
+            dist, idx, gate = _query(tree, moved, max_distance, scale, neighbours if fine else 1)
+            step, rot, trans, pairs = _step(moved, ref, normals, src_n if src_n is not None else empty, transform,
+                                            dist, idx, gate, src_n is not None and fine)
+            if pairs < MIN_PAIRS:
                 break  # too few pairs at this gate: keep the transform, try the next stage
-            p, q, n = moved[rows], ref[cols], normals[cols]
-            agreement = 1.0
-            if src_n is not None and fine:  # the symmetric plane: both normal lines, signs made to agree
-                m = se3.rotate(transform, src_n[rows])
-                cos = np.sum(m * n, axis=1)
-                n = n + m * np.where(cos < 0, -1.0, 1.0)[:, None]
-                n /= np.linalg.norm(n, axis=1, keepdims=True)  # >= sqrt(2): the lines agree in sign
-                agreement = cos * cos  # a pair across a crease (normals apart) has no common plane
-            r = np.sum((p - q) * n, axis=1)
-            w = tukey_weights(r, gate) * agreement
-            jac = np.concatenate([np.cross(p, n), n], axis=1)  # d r / d (omega, v)
-            a = jac.T @ (jac * w[:, None])
-            b = -jac.T @ (w * r)
-            a[np.diag_indices(6)] += DAMPING * max(np.trace(a), 1e-12)
-            x = np.linalg.solve(a, b)
-            step = np.eye(4)
-            step[:3, :3] = se3.exp(np.concatenate([x[:3], np.zeros(3)]))[:, :3]  # the rotation of omega
-            step[:3, 3] = x[3:]
             transform = step @ transform
-            if np.linalg.norm(x[:3]) < tolerance and np.linalg.norm(x[3:]) < tolerance * radius:
+            if rot < tolerance and trans < tolerance * radius:
                 stage_done = True
                 break
         converged &= stage_done
