@@ -1,5 +1,5 @@
 """The default ``align`` at any orientation, on real near-symmetric shapes (bathtubs of the real ModelNet40
-subset's test file, never trained on)."""
+subset's test file, never trained on), and when it runs the network."""
 
 import numpy as np
 import pytest
@@ -70,3 +70,49 @@ def test_a_start_the_icp_slides_away_from_is_kept():
     pair = data.ModelNet40(str(root), "val", "partial", rot_mag=180.0)[77]
     a = _align(pair)
     assert rotation_error_deg(a.transform[:3, :3], pair["transform_gt"][:, :3]) < 5.0, a.init
+
+
+def _val_pair(name, index, rot_mag):
+    root = require(DATA / name, f"{name} (../shared/data)")
+    return data.ModelNet40(str(root), "val", "partial", rot_mag=rot_mag)[index]
+
+
+def test_a_weak_classical_answer_not_in_doubt_skips_the_network():
+    """An airplane's classical answer below ``network_fitness`` (0.6) that the doubt model trusts (``p_wrong`` below
+    ``network_doubt``): no network run, the same answer as with ``network_doubt=0`` (the network always runs on
+    a weak answer) but without its cost."""
+    pair = _val_pair("modelnet40_real_subset", 17, 45.0)
+    a = _align(pair)
+    assert "network" not in a.stages and a.init == "classical" and a.fitness < 0.6
+    assert a.p_wrong < rpmnet_jax.GlobalOptions().network_doubt
+    b = _align(pair, global_options=rpmnet_jax.GlobalOptions(network_doubt=0.0))
+    assert "network" in b.stages
+    for x in (a, b):
+        assert rotation_error_deg(x.transform[:3, :3], pair["transform_gt"][:, :3]) < 1.0
+
+
+def test_a_weak_classical_answer_in_doubt_runs_the_network():
+    """A real_meshes_train pair whose classical answer is 9° off (fitness 0.52, ``p_wrong`` 0.03): the network
+    runs and its answer wins (measured 0.6°)."""
+    pair = _val_pair("real_meshes_train", 74, 45.0)
+    classical = _align(pair, init="classical")
+    assert rotation_error_deg(classical.transform[:3, :3], pair["transform_gt"][:, :3]) > 5.0
+    a = _align(pair)
+    assert "network" in a.stages
+    assert rotation_error_deg(a.transform[:3, :3], pair["transform_gt"][:, :3]) < 2.0
+
+
+def test_a_weak_answer_is_trusted_only_when_sure_unambiguous_and_not_too_weak():
+    """``_trusted``: below ``NETWORK_DOUBT_FLOOR`` the network runs whatever the doubt (the doubt model misses a
+    lone wrong answer of low fitness); at or above it, when not ambiguous and ``p_wrong`` below the bar."""
+    import types
+
+    from rpmnet_jax.pairwise import alignment, options
+
+    opts = rpmnet_jax.GlobalOptions()
+    answer = lambda **kw: types.SimpleNamespace(**{"ambiguous": False, "fitness": 0.5, "p_wrong": 0.001, **kw})
+    assert alignment._trusted(answer(), opts)
+    assert not alignment._trusted(answer(fitness=options.NETWORK_DOUBT_FLOOR - 0.01), opts)
+    assert not alignment._trusted(answer(ambiguous=True), opts)
+    assert not alignment._trusted(answer(p_wrong=opts.network_doubt), opts)
+    assert not alignment._trusted(answer(), rpmnet_jax.GlobalOptions(network_doubt=0.0))

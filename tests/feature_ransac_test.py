@@ -41,8 +41,9 @@ def test_nearest_rows_equal_a_kd_tree():
 
     rng = np.random.default_rng(4)
     rows, queries = rng.uniform(0, 100, (300, 33)), rng.uniform(0, 100, (200, 33))
-    np.testing.assert_array_equal(feature_ransac.nearest_rows(queries, rows, chunk=64),
-                                  cKDTree(rows).query(queries)[1])
+    to_rows, to_queries = feature_ransac.nearest_rows(queries, rows, chunk=64)
+    np.testing.assert_array_equal(to_rows, cKDTree(rows).query(queries)[1])
+    np.testing.assert_array_equal(to_queries, cKDTree(queries).query(rows)[1])
 
 
 def test_scored_samples_equal_kabsch_and_direct_distances():

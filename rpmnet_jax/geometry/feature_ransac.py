@@ -29,20 +29,41 @@ class Hypotheses(NamedTuple):
     num_correspondences: int
 
 
-def nearest_rows(queries: np.ndarray, rows: np.ndarray, chunk: int = 2048) -> np.ndarray:
-    """``(Q,)`` index of each query's nearest row (Euclidean) among ``rows (R, D)``, by brute force as
-    ``|r|² - 2 q·r`` in ``chunk``-row blocks: 5x faster than a k-d tree in FPFH's 33 dimensions (1,024 points)."""
-    queries, rows = np.asarray(queries, np.float64), np.asarray(rows, np.float64)
-    sq = np.einsum("rd,rd->r", rows, rows)
-    return np.concatenate([np.argmin(sq[None] - 2.0 * (queries[i:i + chunk] @ rows.T), axis=1)
-                           for i in range(0, len(queries), chunk)])
+def nearest_rows(src_features: np.ndarray, ref_features: np.ndarray, chunk: int = 2048) -> tuple:
+    """``(to_ref (S,), to_src (R,))``: each source row's nearest reference row and each reference row's nearest
+    source row (Euclidean, the first of equals), by brute force as ``|r|² - 2 q·r`` from one product per
+    ``chunk`` source rows: 5x faster than a k-d tree in FPFH's 33 dimensions (1,024 points), and both directions
+    from the same product."""
+    src, ref = np.asarray(src_features, np.float64), np.asarray(ref_features, np.float64)
+    sq_src, sq_ref = np.einsum("rd,rd->r", src, src), np.einsum("rd,rd->r", ref, ref)
+    to_ref, to_src = np.zeros(len(src), np.int64), np.zeros(len(ref), np.int64)
+    best_src = np.full(len(ref), np.inf)
+    for i in range(0, len(src), chunk):
+        _nearest_both(src[i:i + chunk] @ ref.T, sq_src[i:i + chunk], sq_ref, i, to_ref, to_src, best_src)
+    return to_ref, to_src
+
+
+@numba.njit(cache=True)
+def _nearest_both(product, sq_src, sq_ref, offset, to_ref, to_src, best_src):
+    """One pass over ``product (C, R)`` (the dot products of source rows ``offset..offset+C`` with every reference
+    row): fills their ``to_ref``, and improves ``to_src`` where a row of this block is nearer than ``best_src``."""
+    for i in range(product.shape[0]):
+        best, arg = np.inf, 0
+        for j in range(product.shape[1]):
+            g2 = 2.0 * product[i, j]
+            d = sq_ref[j] - g2
+            if d < best:
+                best, arg = d, j
+            e = sq_src[i] - g2
+            if e < best_src[j]:
+                best_src[j], to_src[j] = e, offset + i
+        to_ref[offset + i] = arg
 
 
 def mutual_correspondences(src_features: np.ndarray, ref_features: np.ndarray) -> np.ndarray:
     """``(C, 2)`` (source, reference) index pairs that are each other's nearest neighbour in feature space;
     all source → reference nearest pairs when fewer than 3 are mutual (as Open3D's mutual filter)."""
-    to_ref = nearest_rows(src_features, ref_features)
-    to_src = nearest_rows(ref_features, src_features)
+    to_ref, to_src = nearest_rows(src_features, ref_features)
     src_idx = np.arange(len(src_features))
     mutual = to_src[to_ref] == src_idx
     keep = mutual if mutual.sum() >= 3 else np.ones_like(mutual)

@@ -9,7 +9,9 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    with a short ICP and keeps the ``top_k`` best (:class:`~rpmnet_jax.pairwise.options.GlobalOptions`);
    ``init="auto"`` (default) refines up to ``GlobalOptions.classical`` FPFH + RANSAC hypotheses
    (:mod:`rpmnet_jax.geometry.feature_ransac`: rotation invariant, cheap) first, adds the local start when the
-   best refined answer's fitness is below ``GlobalOptions.network_fitness`` or it is ambiguous, and the global
+   best refined answer is ambiguous, or when its fitness is below ``GlobalOptions.network_fitness`` and the
+   answer it would give is not trusted (fitness below 0.45, or at least ``GlobalOptions.network_doubt`` likely
+   wrong by step 6), and the global
    search when still no answer reaches ``GlobalOptions.auto_fitness``; ``init="classical"`` refines the classical
    hypotheses alone (no network; the identity when they find none);
 3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.geometry.icp`) from
@@ -154,6 +156,13 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
         if not classical and init in ("classical", "global"):  # no hypothesis: the clouds as they lie
             classical = [starts_lib.identity_start()]
         found += refined(classical) if classical else []
+    if (init == "auto" and found and 0 < global_options.network_doubt and global_options.network_fitness < 1.0
+            and _needs_network(found, global_options)):
+        with clock.stage("refine"):  # the answer the classical candidates give: kept when it is not in doubt
+            selection = candidates_lib.select(found, dense, max_dist_unit, refine, refine_options)
+        classical_answer = _report(inputs, selection, src_points, clock)
+        if _trusted(classical_answer, global_options):
+            return classical_answer
     if init == "local" or (init == "auto" and _needs_network(found, global_options)):
         with clock.stage("network"):
             local = starts_lib.local_start(network_params(), pair, cfg, num_iters)
@@ -170,6 +179,14 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
     with clock.stage("refine"):  # 4. select: the distinct answers, best first, the best one's refinement finished
         selection = candidates_lib.select(found, dense, max_dist_unit, refine, refine_options)
     return _report(inputs, selection, src_points, clock)  # 5. report: in the caller's units, on the full clouds
+
+
+def _trusted(answer: "Alignment", opts: options_lib.GlobalOptions) -> bool:
+    """Whether a weak classical ``answer`` (fitness below ``opts.network_fitness``) stands without the network: not
+    ambiguous, its fitness at least ``options.NETWORK_DOUBT_FLOOR`` and its ``p_wrong`` below
+    ``opts.network_doubt``."""
+    return (not answer.ambiguous and answer.fitness >= options_lib.NETWORK_DOUBT_FLOOR
+            and answer.p_wrong < opts.network_doubt)
 
 
 def _needs_network(found: list, opts: options_lib.GlobalOptions) -> bool:

@@ -45,14 +45,22 @@ class RefineOptions:
         return {f: getattr(self, f) for f in fields if getattr(self, f) is not None}
 
 
+NETWORK_DOUBT = 0.02  # see GlobalOptions (docs/results.md#when-the-network-runs)
+NETWORK_DOUBT_FLOOR = 0.45  # below this fitness a weak answer runs the network whatever its doubt: the doubt model
+# misses a lone wrong answer of low fitness (a planted 150-164 deg hypothesis at 0.14-0.28: p_wrong 0.01-0.04); the
+# weak answers it trusts on the public sets' partial pairs have fitness 0.457 and up
+
+
 @dataclasses.dataclass(frozen=True)
 class GlobalOptions:
     """The orientation-free starts of ``init="auto"`` and ``"global"``.
 
     ``classical``: how many distinct FPFH + RANSAC hypotheses (:mod:`rpmnet_jax.geometry.feature_ransac`,
     rotation-invariant, at least 45° apart) join the candidates of ``auto`` and ``global`` (0: none).
-    ``auto`` refines them first and runs the network from the identity only when the best one's fitness is
-    below ``network_fitness`` (always at 1) or it is ambiguous (a flip scores close to it).
+    ``auto`` refines them first and runs the network from the identity only when the best one is ambiguous (a
+    flip scores close to it), or when its fitness is below ``network_fitness`` (always at 1) and either below
+    ``NETWORK_DOUBT_FLOOR`` (0.45) or the answer it would give is at least ``network_doubt`` likely wrong
+    (``p_wrong`` of :mod:`rpmnet_jax.pairwise.doubt`; 0: whatever its doubt).
     The network's global search (``init="global"``, or ``"auto"`` when no candidate reaches a fitness of
     ``auto_fitness``): ``hypotheses``, ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened
     with ``iters`` network iterations on ``points`` per cloud and a short ICP on ``polish_points`` source
@@ -67,12 +75,13 @@ class GlobalOptions:
     auto_fitness: float = 0.6
     classical: int = 4
     network_fitness: float = 0.6
+    network_doubt: float = NETWORK_DOUBT
 
     def __post_init__(self):
         checks.require_choice("GlobalOptions.hypotheses", self.hypotheses, HYPOTHESIS_SETS)
         for name, least in (("top_k", 1), ("points", 3), ("polish_points", 3), ("iters", 1), ("classical", 0)):
             checks.require_at_least(f"GlobalOptions.{name}", getattr(self, name), least)
-        for name in ("auto_fitness", "network_fitness"):
+        for name in ("auto_fitness", "network_fitness", "network_doubt"):
             checks.require_fraction(f"GlobalOptions.{name}", getattr(self, name))
 
 
