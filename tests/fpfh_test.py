@@ -71,3 +71,21 @@ def test_one_neighbour_and_one_point_give_empty_histograms_of_33_bins():
     np.testing.assert_array_equal(one, 0.0)
     with pytest.raises(ValueError, match="max_nn"):
         fpfh.neighbours(pts, 0.3, 0)
+
+
+def test_the_grid_search_finds_the_k_d_tree_s_neighbours():
+    """The hybrid search by radius cells: the same rows, distances and order as the k-d tree's, for points with
+    more and with fewer neighbours than ``max_nn`` (a sparse outlier among them), and the tree for a cloud whose
+    extent would need too many cells."""
+    from rpmnet_jax.geometry import kdtree
+
+    rng = np.random.default_rng(7)
+    pts = np.concatenate([rng.normal(size=(600, 3)) * [0.3, 0.2, 0.1], [[3.0, 3.0, 3.0]]])
+    for max_nn in (1, 16, 128):
+        grid = fpfh.neighbours(pts, 0.25, max_nn)
+        tree = fpfh.neighbours(pts, 0.25, max_nn, tree=kdtree.KdTree(pts))
+        for a, b in zip(grid, tree):
+            np.testing.assert_array_equal(a, b)
+    assert fpfh.neighbours(pts, 0.25, 16)[2][-1].sum() == 1  # the outlier: itself only
+    far = np.concatenate([pts, [[1e7, 0.0, 0.0]]])  # 4e7 cells along x: the tree searches
+    np.testing.assert_array_equal(fpfh.neighbours(far, 0.25, 8)[0][:-1], fpfh.neighbours(pts, 0.25, 8)[0])
