@@ -9,9 +9,9 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    with a short ICP and keeps the ``top_k`` best (:class:`~rpmnet_jax.pairwise.options.GlobalOptions`);
    ``init="auto"`` (default) refines up to ``GlobalOptions.classical`` FPFH + RANSAC hypotheses
    (:mod:`rpmnet_jax.geometry.feature_ransac`: rotation invariant, cheap) first, adds the local start when the
-   best refined answer is ambiguous, or when its fitness is below ``GlobalOptions.network_fitness`` and the
-   answer it would give is not trusted (fitness below 0.45, or at least ``GlobalOptions.network_doubt`` likely
-   wrong by step 6), and the global
+   best refined answer is ambiguous, or when its fitness is below ``GlobalOptions.network_fitness`` (with
+   ``GlobalOptions.network_doubt`` set, off by default: and the answer it would give is not trusted, its fitness
+   below 0.45 or at least that likely wrong by step 6), and the global
    search when still no answer reaches ``GlobalOptions.auto_fitness``; ``init="classical"`` refines the classical
    hypotheses alone (no network; the identity when they find none);
 3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.geometry.icp`) from
