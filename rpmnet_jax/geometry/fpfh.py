@@ -78,6 +78,9 @@ def pair_features(p1, n1, p2, n2):
     return _rows_features(*flat).reshape(shape + (4,))
 
 
+GRID_CELLS_PER_AXIS = 1 << 20  # beyond this many radius cells along an axis the k-d tree searches instead
+
+
 def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: kdtree.KdTree | None = None):
     """Hybrid search (Open3D's ``KDTreeSearchParamHybrid``): the ``max_nn`` nearest points within ``radius``
     of each point, itself included first. Returns ``(idx (N, max_nn), dist² (N, max_nn), valid (N, max_nn))``;
@@ -98,9 +101,6 @@ def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: kdtree.KdTr
     valid = np.isfinite(dist)
     own = np.arange(len(points))[:, None]
     return np.where(valid, idx, own), np.where(valid, dist, 0.0) ** 2, valid
-
-
-GRID_CELLS_PER_AXIS = 1 << 20  # beyond this many radius cells along an axis the k-d tree searches instead
 
 
 @numba.njit(cache=True)

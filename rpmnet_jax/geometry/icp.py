@@ -36,6 +36,7 @@ import numba
 import numpy as np
 
 from rpmnet_jax.geometry import cloud, kdtree
+from rpmnet_jax.ops import se3
 
 
 class Refinement(NamedTuple):
@@ -69,14 +70,11 @@ SMALL_ANGLE = float(np.finfo(np.float64).eps) ** 0.5  # |ω|² below which Rodri
 
 
 @numba.njit(cache=True)
-def _moved(transform, src):
-    """``src (N, 3)`` mapped by ``transform (4, 4)``."""
-    out = np.empty_like(src)
-    for i in range(len(src)):
-        for r in range(3):
-            out[i, r] = (transform[r, 0] * src[i, 0] + transform[r, 1] * src[i, 1] + transform[r, 2] * src[i, 2]
-                         + transform[r, 3])
-    return out
+def tukey_weights(residuals, scale: float):
+    """Tukey's biweight ``(1 - (r / scale)²)²`` of ``residuals`` (an array ``(P,)`` or one number), 0 beyond
+    ``scale`` (compiled: the ICP's loop calls it per pair)."""
+    u = np.minimum(np.abs(residuals) / scale, 1.0)
+    return (1.0 - u * u) ** 2
 
 
 def _query(tree: kdtree.KdTree, moved: np.ndarray, max_distance: float, scale: float, neighbours: int
@@ -141,8 +139,7 @@ def _step(moved, ref, normals, src_normals, transform, dist, idx, gate, symmetri
                 nx, ny, nz = nx / norm, ny / norm, nz / norm
                 agreement = cos * cos
             r = (px - ref[j, 0]) * nx + (py - ref[j, 1]) * ny + (pz - ref[j, 2]) * nz
-            u = min(abs(r) / gate, 1.0)
-            w = (1.0 - u * u) ** 2 * agreement
+            w = tukey_weights(r, gate) * agreement
             jac[0], jac[1], jac[2] = py * nz - pz * ny, pz * nx - px * nz, px * ny - py * nx  # d r / d (ω, v)
             jac[3], jac[4], jac[5] = nx, ny, nz
             for c in range(6):
@@ -178,12 +175,6 @@ def _step(moved, ref, normals, src_normals, transform, dist, idx, gate, symmetri
     return step, math.sqrt(t), math.sqrt(x[3] * x[3] + x[4] * x[4] + x[5] * x[5]), pairs
 
 
-def tukey_weights(residuals: np.ndarray, scale: float) -> np.ndarray:
-    """Tukey's biweight ``(1 - (r / scale)²)²`` of ``residuals (P,)``, 0 beyond ``scale``."""
-    u = np.minimum(np.abs(residuals) / scale, 1.0)
-    return (1.0 - u * u) ** 2
-
-
 def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_normals=None,
                        scales=PAIR.scales, max_iterations: int = PAIR.max_iterations, tolerance: float = 1e-4,
                        neighbours: int = 3, ref_tree: kdtree.KdTree | None = None) -> Refinement:
@@ -216,7 +207,7 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
         stage_done, fine = False, scale <= 1.0
         for _ in range(max_iterations):
             total += 1
-            moved = _moved(transform, src)
+            moved = se3.apply(transform, src)
             dist, idx, gate = _query(tree, moved, max_distance, scale, neighbours if fine else 1)
             step, rot, trans, pairs = _step(moved, ref, normals, src_n if src_n is not None else empty, transform,
                                             dist, idx, gate, src_n is not None and fine)
