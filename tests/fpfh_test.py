@@ -74,18 +74,24 @@ def test_one_neighbour_and_one_point_give_empty_histograms_of_33_bins():
 
 
 def test_the_grid_search_finds_the_k_d_tree_s_neighbours():
-    """The hybrid search by radius cells: the same rows, distances and order as the k-d tree's, for points with
-    more and with fewer neighbours than ``max_nn`` (a sparse outlier among them), and the tree for a cloud whose
-    extent would need too many cells."""
+    """The hybrid search by radius cells: itself first, then the same rows at the same distances as the k-d
+    tree's (in any order), for points with more and with fewer neighbours than ``max_nn`` (a sparse outlier
+    among them), and the tree for a cloud whose extent would need too many cells."""
     from rpmnet_jax.geometry import kdtree
 
     rng = np.random.default_rng(7)
     pts = np.concatenate([rng.normal(size=(600, 3)) * [0.3, 0.2, 0.1], [[3.0, 3.0, 3.0]]])
     for max_nn in (1, 16, 128):
-        grid = fpfh.neighbours(pts, 0.25, max_nn)
-        tree = fpfh.neighbours(pts, 0.25, max_nn, tree=kdtree.KdTree(pts))
-        for a, b in zip(grid, tree):
-            np.testing.assert_array_equal(a, b)
+        g_idx, g_d2, g_valid = fpfh.neighbours(pts, 0.25, max_nn)
+        t_idx, t_d2, t_valid = fpfh.neighbours(pts, 0.25, max_nn, tree=kdtree.KdTree(pts))
+        np.testing.assert_array_equal(g_idx[:, 0], np.arange(len(pts)))
+        np.testing.assert_array_equal(g_valid, t_valid)
+        np.testing.assert_array_equal(np.sort(g_idx, axis=1), np.sort(t_idx, axis=1))
+        order = np.argsort(g_idx, axis=1), np.argsort(t_idx, axis=1)
+        np.testing.assert_allclose(np.take_along_axis(g_d2, order[0], 1), np.take_along_axis(t_d2, order[1], 1),
+                                   rtol=1e-12, atol=1e-15)
     assert fpfh.neighbours(pts, 0.25, 16)[2][-1].sum() == 1  # the outlier: itself only
-    far = np.concatenate([pts, [[1e7, 0.0, 0.0]]])  # 4e7 cells along x: the tree searches
-    np.testing.assert_array_equal(fpfh.neighbours(far, 0.25, 8)[0][:-1], fpfh.neighbours(pts, 0.25, 8)[0])
+    far = np.concatenate([pts, [[1e7, 0.0, 0.0]]])  # 4e7 cells along x: the tree searches, nearest first
+    idx, d2, _ = fpfh.neighbours(far, 0.25, 8)
+    np.testing.assert_array_equal(np.sort(idx[:-1], axis=1), np.sort(fpfh.neighbours(pts, 0.25, 8)[0], axis=1))
+    assert np.all(np.diff(d2, axis=1)[idx[:, 1:] != np.arange(len(far))[:, None]] >= 0)

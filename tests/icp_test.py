@@ -98,14 +98,19 @@ def test_gates_follow_the_clouds_within_their_bounds():
     tree = kdtree.KdTree(pts[1::2])
     dense = pts[::2]  # 3 median nearest-neighbour distances: 0.037
     noisy = dense + rng.normal(scale=0.05, size=dense.shape)  # about 0.12
-    assert icp._query(tree, dense, 0.2, 1.0, 3)[2] == pytest.approx(0.05)  # the floor: a quarter
-    assert icp._query(tree, dense, 0.1, 1.0, 3)[2] == pytest.approx(0.037, abs=1e-3)  # in between
-    assert icp._query(tree, noisy, 0.1, 1.0, 3)[2] == pytest.approx(0.1)  # the stage's gate
+
+    def gate(moved, max_distance, scale, neighbours):
+        dist = tree.query(moved, k=neighbours, distance_upper_bound=scale * max_distance)[0]
+        return icp._gate(dist.reshape(len(moved), neighbours), max_distance, scale)
+
+    assert gate(dense, 0.2, 1.0, 3) == pytest.approx(0.05)  # the floor: a quarter
+    assert gate(dense, 0.1, 1.0, 3) == pytest.approx(0.037, abs=1e-3)  # in between
+    assert gate(noisy, 0.1, 1.0, 3) == pytest.approx(0.1)  # the stage's gate
     half_apart = np.concatenate([dense, dense + [5.0, 0.0, 0.0]])  # half the source overlaps nothing
-    assert icp._query(tree, half_apart, 0.1, 1.0, 3)[2] == pytest.approx(0.037, abs=1e-3)  # the overlap's
-    assert icp._query(tree, dense, 0.05, 4.0, 1)[2] == pytest.approx(0.05)  # coarse: down to the finest
-    assert icp._query(tree, dense + [0.5, 0.0, 0.0], 0.05, 4.0, 1)[2] == pytest.approx(0.2)  # apart
-    assert 0.1 < icp._query(tree, noisy, 0.02, 8.0, 1)[2] < 0.14  # in between (0.02 .. 0.16)
+    assert gate(half_apart, 0.1, 1.0, 3) == pytest.approx(0.037, abs=1e-3)  # the overlap's
+    assert gate(dense, 0.05, 4.0, 1) == pytest.approx(0.05)  # coarse: down to the finest
+    assert gate(dense + [0.5, 0.0, 0.0], 0.05, 4.0, 1) == pytest.approx(0.2)  # apart
+    assert 0.1 < gate(noisy, 0.02, 8.0, 1) < 0.14  # in between (0.02 .. 0.16)
 
 
 # Open3D's median rotation error (°) on the pairs and starts of the test below (measured, open3d 0.20.0): the

@@ -1,4 +1,5 @@
-"""The pipeline's k-d tree: SciPy's neighbours and conventions (missing: ``inf``, index ``n``); pickling."""
+"""The library's k-d tree: SciPy's neighbours and conventions (missing: ``inf``, index ``n``) for few and many
+queries, repeated points, tiny and empty clouds; the compiled query; pickling."""
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -41,3 +42,36 @@ def test_a_pickled_tree_answers_the_same():
     assert np.array_equal(copy.data, tree.data) and copy.n == tree.n
     for a, b in zip(copy.query(queries, k=3), tree.query(queries, k=3)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_many_queries_on_every_core_and_repeated_points_equal_scipys():
+    """A batch of ``PARALLEL_QUERIES`` or more runs in parallel; clouds with repeated points and of fewer points
+    than a leaf give SciPy's distances (of equally near points either may come first)."""
+    rng = np.random.default_rng(2)
+    for n in (1, 5, 40, 3000):
+        points = rng.uniform(-1, 1, (n, 3))
+        points[: n // 3] = points[n - n // 3:]  # a third repeated
+        queries = rng.uniform(-1, 1, (kdtree.PARALLEL_QUERIES + 7 if n == 3000 else 300, 3))
+        for k, bound in ((1, np.inf), (3, 0.2), (8, np.inf)):
+            d, i = kdtree.KdTree(points).query(queries, k=k, distance_upper_bound=bound)
+            d_ref, _ = cKDTree(points).query(queries, k=k, distance_upper_bound=bound)
+            np.testing.assert_allclose(d, d_ref, rtol=1e-12)
+            found = np.isfinite(d)
+            near = np.linalg.norm(points[np.where(found, i, 0)] - (queries[:, None] if k > 1 else queries), axis=-1)
+            np.testing.assert_allclose(np.where(found, near, np.inf), d, rtol=1e-12)
+            assert np.all(i[~found] == n)
+
+
+def test_the_compiled_query_gives_tree_positions_of_the_nearest():
+    """``nearest`` (for compiled loops): squared distances, ascending, and positions in tree order."""
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-1, 1, (500, 3))
+    tree = kdtree.KdTree(points)
+    d2, at = np.empty(4), np.empty(4, np.int64)
+    kdtree.nearest(tree.nodes, 0.1, -0.2, 0.3, 4, np.inf, d2, at)
+    d, i = cKDTree(points).query([0.1, -0.2, 0.3], k=4)
+    np.testing.assert_allclose(np.sqrt(d2), d, rtol=1e-12)
+    np.testing.assert_array_equal(tree.nodes.rows[at], i)
+    np.testing.assert_array_equal(tree.nodes.points[at], points[i])
+    kdtree.nearest(tree.nodes, 5.0, 5.0, 5.0, 4, 1.0, d2, at)  # nothing within 1
+    assert np.all(np.isinf(d2)) and np.all(at == 500)

@@ -83,31 +83,35 @@ GRID_CELLS_PER_AXIS = 1 << 20  # beyond this many radius cells along an axis the
 
 def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: kdtree.KdTree | None = None):
     """Hybrid search (Open3D's ``KDTreeSearchParamHybrid``): the ``max_nn`` nearest points within ``radius``
-    of each point, itself included first. Returns ``(idx (N, max_nn), dist² (N, max_nn), valid (N, max_nn))``;
+    of each point, itself first. Returns ``(idx (N, max_nn), dist² (N, max_nn), valid (N, max_nn))``;
     invalid slots point at the point itself. By a grid of ``radius`` cells (:func:`_grid_search`: the same
-    neighbours as the k-d tree's search, 3–4x faster at FPFH's 128 neighbours) unless the grid would be
-    too fine for the cloud's extent or a ``tree`` is given."""
+    neighbours as the k-d tree's search, after the first slot in no particular order: FPFH sums over them, and
+    leaving them unsorted makes the search 4x faster, 2.0 against 9.5 ms on 717 points at 128 neighbours)
+    unless the grid would be too fine for the cloud's extent or a ``tree`` is given (then nearest first)."""
     if max_nn < 1:
         raise ValueError(f"max_nn must be >= 1, got {max_nn}")
     points = np.ascontiguousarray(points, np.float64)
     k = min(max_nn, len(points))
     gridded = tree is None and len(points) > 0 and 0 < radius < np.inf and bool(np.isfinite(points).all())
     if gridded and np.all(np.ptp(points, axis=0) / radius < GRID_CELLS_PER_AXIS):
-        dist, idx = _grid_search(points, float(radius), k)
+        d2, idx = _grid_search(points, float(radius), k)
+        valid = np.isfinite(d2)
     else:
         tree = tree or kdtree.KdTree(points)
         dist, idx = tree.query(points, k=k, distance_upper_bound=radius)
         dist, idx = dist.reshape(len(points), k), idx.reshape(len(points), k)  # k=1 returns (N,): keep (N, 1)
-    valid = np.isfinite(dist)
+        valid = np.isfinite(dist)
+        d2 = dist ** 2
     own = np.arange(len(points))[:, None]
-    return np.where(valid, idx, own), np.where(valid, dist, 0.0) ** 2, valid
+    return np.where(valid, idx, own), np.where(valid, d2, 0.0), valid
 
 
 @numba.njit(cache=True)
 def _grid_search(points, radius, k):
-    """``(distances (N, k), indices (N, k))``: each point's ``k`` nearest points within ``radius`` (itself
-    included), nearest first, ``inf`` and ``N`` in the slots left over (the k-d tree's convention), found in the
-    27 cells of side ``radius`` around its own."""
+    """``(squared distances (N, k), indices (N, k))``: each point itself in the first slot, then its ``k - 1``
+    nearest other points within ``radius`` in no particular order (of equally far ones at the ``k``-th
+    place, the first found), ``inf`` and ``N`` in the slots left over (the k-d tree's convention), found in
+    the 27 cells of side ``radius`` around its own."""
     n = len(points)
     lo = np.empty(3)
     for a in range(3):
@@ -124,6 +128,7 @@ def _grid_search(points, radius, k):
     out_i = np.full((n, k), n, np.int64)
     cand_d = np.empty(n)
     cand_i = np.empty(n, np.int64)
+    r2 = radius * radius
     for i in range(n):
         m = 0
         for dx in range(-1, 2):
@@ -134,14 +139,16 @@ def _grid_search(points, radius, k):
                     while j < n and sorted_keys[j] == key:
                         q = order[j]
                         ex, ey, ez = points[q, 0] - points[i, 0], points[q, 1] - points[i, 1], points[q, 2] - points[i, 2]
-                        d = math.sqrt(ex * ex + ey * ey + ez * ez)
-                        if d <= radius:
+                        d = ex * ex + ey * ey + ez * ez
+                        if d <= r2 and q != i:
                             cand_d[m], cand_i[m] = d, q
                             m += 1
                         j += 1
-        ranked = np.argsort(cand_d[:m], kind="mergesort")
-        for t in range(min(k, m)):
-            out_d[i, t], out_i[i, t] = cand_d[ranked[t]], cand_i[ranked[t]]
+        out_d[i, 0], out_i[i, 0] = 0.0, i
+        if m > k - 1:  # only the k - 1 nearest: moved to the front
+            kdtree.select(cand_d, cand_i, m, k - 1)
+        for t in range(min(m, k - 1)):
+            out_d[i, 1 + t], out_i[i, 1 + t] = cand_d[t], cand_i[t]
     return out_d, out_i
 
 

@@ -16,7 +16,8 @@ point-to-plane problem (6×6). The gates come in stages, coarse to fine (``scale
   common plane; such pairs made the update flip back and forth as they crossed the gate).
 
 A stage ends when the update is below ``tolerance`` (rotation in radians, translation relative to the cloud
-radius) or after ``max_iterations``.
+radius) or after ``max_iterations``. Each stage is one compiled loop: moving the source, querying the k-d tree
+(:mod:`rpmnet_jax.geometry.kdtree`), gating and solving, with no Python between iterations.
 
 Why (measured against Open3D's Tukey point-to-plane ICP, 0.05 / k 0.05 / 60 iterations, from the same
 starts on the real ModelNet40 subset and real_meshes_train test files, ``experiments.refine_ab``): Tukey
@@ -36,7 +37,6 @@ import numba
 import numpy as np
 
 from rpmnet_jax.geometry import cloud, kdtree
-from rpmnet_jax.ops import se3
 
 
 class Refinement(NamedTuple):
@@ -77,28 +77,18 @@ def tukey_weights(residuals, scale: float):
     return (1.0 - u * u) ** 2
 
 
-def _query(tree: kdtree.KdTree, moved: np.ndarray, max_distance: float, scale: float, neighbours: int
-           ) -> tuple[np.ndarray, np.ndarray, float]:
-    """``(distances (Q, K), reference rows (Q, K), gate)``: the ``neighbours`` nearest reference points of each
-    moved source point within ``scale × max_distance`` (beyond: ``inf``), and the stage's gate. The gate is
-    ``GATE_MEDIANS`` median nearest-neighbour distances, between ``max_distance`` and ``scale × max_distance`` in
-    a coarse stage (``scale > 1``: wide while the clouds lie apart, the finest gate once they lie on each other),
-    between ``FINE_FLOOR × scale × max_distance`` and ``scale × max_distance`` in a fine one (narrower only for
-    clouds much denser and less noisy than ``max_distance`` assumes), there over the source points with a partner
-    within ``scale × max_distance`` only: the part that does not overlap (half of a pair of range scans 90° apart)
-    says nothing of the noise."""
+@numba.njit(cache=True)
+def _gate(dist, max_distance, scale):
+    """A stage's gate from the distances ``dist (Q, K)`` of each moved source point's nearest reference points
+    within the stage's ceiling ``scale × max_distance`` (``inf`` beyond): ``GATE_MEDIANS`` median nearest
+    distances (``dist[:, 0]``), between ``max_distance`` and the ceiling in a coarse stage (``scale > 1``: wide
+    while the clouds lie apart, the finest gate once they lie on each other), between ``FINE_FLOOR`` × the ceiling
+    and the ceiling in a fine one (narrower only for clouds much denser and less noisy than ``max_distance``
+    assumes), there over the source points with a partner within the ceiling only: the part that does not
+    overlap (half of a pair of range scans 90° apart) says nothing of the noise. The ceiling when none has one."""
     ceiling = scale * max_distance
     coarse = scale > 1.0
-    dist, idx = tree.query(moved, k=neighbours, distance_upper_bound=ceiling)
-    dist, idx = dist.reshape(len(moved), neighbours), idx.reshape(len(moved), neighbours)
-    return dist, idx, _gate(dist, max_distance if coarse else FINE_FLOOR * ceiling, ceiling, coarse)
-
-
-@numba.njit(cache=True)
-def _gate(dist, floor, ceiling, coarse):
-    """``GATE_MEDIANS`` median nearest distances (``dist[:, 0]`` of ``dist (Q, K)``) within ``[floor, ceiling]``,
-    over every query when ``coarse``, else over those with a partner within ``ceiling``; ``ceiling`` when there
-    is none."""
+    floor = max_distance if coarse else FINE_FLOOR * ceiling
     nearest = np.empty(len(dist))
     m = 0
     for i in range(len(dist)):
@@ -175,6 +165,42 @@ def _step(moved, ref, normals, src_normals, transform, dist, idx, gate, symmetri
     return step, math.sqrt(t), math.sqrt(x[3] * x[3] + x[4] * x[4] + x[5] * x[5]), pairs
 
 
+@numba.njit(cache=True)
+def _stage(src, nodes, normals, src_normals, transform, max_distance, scale, neighbours, symmetric,
+           max_iterations, rot_tolerance, shift_tolerance):
+    """One stage of :func:`point_to_plane_icp`, compiled whole: each iteration moves ``src (N, 3)``, pairs each
+    point with its ``neighbours`` nearest points of the reference's k-d tree ``nodes`` (``normals`` in tree
+    order) within the stage's ceiling, gates them (:func:`_gate`) and takes the step (:func:`_step`). Returns
+    ``(transform, iterations, ended on the tolerance)``; a step with fewer than
+    ``MIN_PAIRS`` pairs ends the stage (not converged, transform kept)."""
+    ceiling = scale * max_distance
+    n = len(src)
+    moved = np.empty((n, 3))
+    dist = np.empty((n, neighbours))
+    idx = np.empty((n, neighbours), np.int64)
+    d2 = np.empty(neighbours)
+    at = np.empty(neighbours, np.int64)
+    bound2 = ceiling * ceiling
+    for iteration in range(1, max_iterations + 1):
+        for i in range(n):
+            for a in range(3):
+                moved[i, a] = (transform[a, 0] * src[i, 0] + transform[a, 1] * src[i, 1]
+                               + transform[a, 2] * src[i, 2] + transform[a, 3])
+            kdtree.nearest(nodes, moved[i, 0], moved[i, 1], moved[i, 2], neighbours, bound2, d2, at)
+            for t in range(neighbours):
+                dist[i, t] = math.sqrt(d2[t])
+                idx[i, t] = at[t]
+        gate = _gate(dist, max_distance, scale)
+        step, rot, shift, pairs = _step(moved, nodes.points, normals, src_normals, transform, dist, idx, gate,
+                                        symmetric)
+        if pairs < MIN_PAIRS:
+            return transform, iteration, False
+        transform = step @ transform
+        if rot < rot_tolerance and shift < shift_tolerance:
+            return transform, iteration, True
+    return transform, max_iterations, False
+
+
 def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_normals=None,
                        scales=PAIR.scales, max_iterations: int = PAIR.max_iterations, tolerance: float = 1e-4,
                        neighbours: int = 3, ref_tree: kdtree.KdTree | None = None) -> Refinement:
@@ -186,10 +212,10 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
     ``max_iterations``: per stage; ``neighbours``: reference points paired with each source point in a fine
     stage.
     """
-    src = np.asarray(src, np.float64)
+    src = np.ascontiguousarray(src, np.float64)
     ref = np.asarray(ref, np.float64)
     normals = np.asarray(ref_normals, np.float64)
-    src_n = None if src_normals is None else np.asarray(src_normals, np.float64)
+    src_n = None if src_normals is None else np.ascontiguousarray(src_normals, np.float64)
     if not max_distance > 0:
         raise ValueError(f"max_distance must be > 0, got {max_distance}")
     if max_iterations < 1:
@@ -199,23 +225,16 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
     if src_n is not None and src_n.shape != src.shape:
         raise ValueError(f"src_normals {src_n.shape} do not match src {src.shape}")
     tree = ref_tree if ref_tree is not None else kdtree.KdTree(ref)
+    normals_in_tree_order = normals[tree.nodes.rows]
     radius = max(cloud.radius(src), 1e-12)
     transform = np.array(init, np.float64)
     total, converged = 0, True
-    empty = np.zeros((0, 3))
     for scale in scales:
-        stage_done, fine = False, scale <= 1.0
-        for _ in range(max_iterations):
-            total += 1
-            moved = se3.apply(transform, src)
-            dist, idx, gate = _query(tree, moved, max_distance, scale, neighbours if fine else 1)
-            step, rot, trans, pairs = _step(moved, ref, normals, src_n if src_n is not None else empty, transform,
-                                            dist, idx, gate, src_n is not None and fine)
-            if pairs < MIN_PAIRS:
-                break  # too few pairs at this gate: keep the transform, try the next stage
-            transform = step @ transform
-            if rot < tolerance and trans < tolerance * radius:
-                stage_done = True
-                break
+        fine = scale <= 1.0
+        transform, iterations, stage_done = _stage(
+            src, tree.nodes, normals_in_tree_order, src_n if src_n is not None else np.zeros((0, 3)), transform,
+            max_distance, scale, neighbours if fine else 1, src_n is not None and fine, max_iterations,
+            tolerance, tolerance * radius)
+        total += iterations
         converged &= stage_done
     return Refinement(transform, bool(converged), total)
