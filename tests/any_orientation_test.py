@@ -49,6 +49,21 @@ def test_auto_runs_the_network_only_when_the_classical_answer_is_weak_or_ambiguo
     assert rotation_error_deg(b.transform[:3, :3], pairs[1]["transform_gt"][:, :3]) < 5.0
 
 
+def test_two_agreeing_starts_spare_the_global_search():
+    """A weak classical answer (fitness below ``auto_fitness``) that the network's own start reaches too is
+    confirmed: the global search does not run (the real ModelNet40 subset's test pair 13, partial, ±45°); at
+    ``auto_fitness=1`` it always runs, and the answer stays."""
+    root = require(DATA / "modelnet40_real_subset", "the real ModelNet40 subset (../shared/data)")
+    pair = data.ModelNet40(str(root), "val", "partial", rot_mag=45.0)[13]
+    a = _align(pair)
+    assert "network" in a.stages and "global" not in a.stages
+    assert a.fitness < rpmnet_jax.GlobalOptions().auto_fitness and {"classical", "local"} <= set(a.candidates[0].support)
+    assert rotation_error_deg(a.transform[:3, :3], pair["transform_gt"][:, :3]) < 5.0
+    b = _align(pair, global_options=rpmnet_jax.GlobalOptions(auto_fitness=1.0))
+    assert "global" in b.stages
+    assert rotation_error_deg(b.transform[:3, :3], a.transform[:3, :3]) < 0.1
+
+
 def test_classical_hypotheses_are_deterministic_under_a_seed(pairs):
     a, b = _align(pairs[1], seed=3), _align(pairs[1], seed=3)
     np.testing.assert_array_equal(a.transform, b.transform)

@@ -68,10 +68,10 @@ def test_the_compiled_query_gives_tree_positions_of_the_nearest():
     points = rng.uniform(-1, 1, (500, 3))
     tree = kdtree.KdTree(points)
     d2, at = np.empty(4), np.empty(4, np.int64)
-    kdtree.nearest(tree.nodes, 0.1, -0.2, 0.3, 4, np.inf, d2, at)
+    kdtree.nearest(tree.nodes, 0.1, -0.2, 0.3, 4, np.inf, d2, at, kdtree.scratch())
     d, i = cKDTree(points).query([0.1, -0.2, 0.3], k=4)
     np.testing.assert_allclose(np.sqrt(d2), d, rtol=1e-12)
     np.testing.assert_array_equal(tree.nodes.rows[at], i)
     np.testing.assert_array_equal(tree.nodes.points[at], points[i])
-    kdtree.nearest(tree.nodes, 5.0, 5.0, 5.0, 4, 1.0, d2, at)  # nothing within 1
+    kdtree.nearest(tree.nodes, 5.0, 5.0, 5.0, 4, 1.0, d2, at, kdtree.scratch())  # nothing within 1
     assert np.all(np.isinf(d2)) and np.all(at == 500)

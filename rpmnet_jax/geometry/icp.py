@@ -166,8 +166,33 @@ def _step(moved, ref, normals, src_normals, transform, dist, idx, gate, symmetri
 
 
 @numba.njit(cache=True)
+def _pair_up(nodes, src, transform, neighbours, bound2, moved, dist, idx, start, stop):
+    """Source points ``start..stop`` moved by ``transform`` into ``moved``, their ``neighbours`` nearest
+    reference points (k-d tree ``nodes``, within ``sqrt(bound2)``) into ``dist`` and ``idx`` (tree order)."""
+    d2 = np.empty(neighbours)
+    at = np.empty(neighbours, np.int64)
+    work = kdtree.scratch()
+    for i in range(start, stop):
+        for a in range(3):
+            moved[i, a] = (transform[a, 0] * src[i, 0] + transform[a, 1] * src[i, 1] + transform[a, 2] * src[i, 2]
+                           + transform[a, 3])
+        kdtree.nearest(nodes, moved[i, 0], moved[i, 1], moved[i, 2], neighbours, bound2, d2, at, work)
+        for t in range(neighbours):
+            dist[i, t] = math.sqrt(d2[t])
+            idx[i, t] = at[t]
+
+
+@numba.njit(cache=True, parallel=True)
+def _pair_up_parallel(nodes, src, transform, neighbours, bound2, moved, dist, idx, chunks):
+    """:func:`_pair_up` of every source point, in ``chunks`` pieces on every core."""
+    per = (len(src) + chunks - 1) // chunks
+    for c in numba.prange(chunks):
+        _pair_up(nodes, src, transform, neighbours, bound2, moved, dist, idx, c * per, min((c + 1) * per, len(src)))
+
+
+@numba.njit(cache=True)
 def _stage(src, nodes, normals, src_normals, transform, max_distance, scale, neighbours, symmetric,
-           max_iterations, rot_tolerance, shift_tolerance):
+           max_iterations, rot_tolerance, shift_tolerance, chunks):
     """One stage of :func:`point_to_plane_icp`, compiled whole: each iteration moves ``src (N, 3)``, pairs each
     point with its ``neighbours`` nearest points of the reference's k-d tree ``nodes`` (``normals`` in tree
     order) within the stage's ceiling, gates them (:func:`_gate`) and takes the step (:func:`_step`). Returns
@@ -178,18 +203,12 @@ def _stage(src, nodes, normals, src_normals, transform, max_distance, scale, nei
     moved = np.empty((n, 3))
     dist = np.empty((n, neighbours))
     idx = np.empty((n, neighbours), np.int64)
-    d2 = np.empty(neighbours)
-    at = np.empty(neighbours, np.int64)
     bound2 = ceiling * ceiling
     for iteration in range(1, max_iterations + 1):
-        for i in range(n):
-            for a in range(3):
-                moved[i, a] = (transform[a, 0] * src[i, 0] + transform[a, 1] * src[i, 1]
-                               + transform[a, 2] * src[i, 2] + transform[a, 3])
-            kdtree.nearest(nodes, moved[i, 0], moved[i, 1], moved[i, 2], neighbours, bound2, d2, at)
-            for t in range(neighbours):
-                dist[i, t] = math.sqrt(d2[t])
-                idx[i, t] = at[t]
+        if chunks > 1:
+            _pair_up_parallel(nodes, src, transform, neighbours, bound2, moved, dist, idx, chunks)
+        else:
+            _pair_up(nodes, src, transform, neighbours, bound2, moved, dist, idx, 0, n)
         gate = _gate(dist, max_distance, scale)
         step, rot, shift, pairs = _step(moved, nodes.points, normals, src_normals, transform, dist, idx, gate,
                                         symmetric)
@@ -234,7 +253,7 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
         transform, iterations, stage_done = _stage(
             src, tree.nodes, normals_in_tree_order, src_n if src_n is not None else np.zeros((0, 3)), transform,
             max_distance, scale, neighbours if fine else 1, src_n is not None and fine, max_iterations,
-            tolerance, tolerance * radius)
+            tolerance, tolerance * radius, kdtree.chunks() if len(src) >= kdtree.PARALLEL_QUERIES else 1)
         total += iterations
         converged &= stage_done
     return Refinement(transform, bool(converged), total)

@@ -21,7 +21,7 @@ import numba
 import numpy as np
 
 LEAF = 12  # points per leaf at most
-PARALLEL_QUERIES = 20_000  # a query from Python with at least this many points runs on every core
+PARALLEL_QUERIES = 2_000  # a query of at least this many points runs on every core (the ICP's too)
 
 
 @numba.njit(cache=True)
@@ -108,22 +108,34 @@ def _build(points):
     return ordered, rows, axis, split, first, last
 
 
+STACK = 64  # nodes waiting in a query: more than twice the depth of a tree of 2^31 points
+
+
 @numba.njit(cache=True)
-def nearest(nodes, x, y, z, k, bound2, out_d2, out_at):
+def scratch():
+    """The work space of :func:`nearest` (made once per loop, not per query: an allocation per query costs as
+    much as a query of a small tree, and serialises threads)."""
+    return np.empty(STACK, np.int64), np.empty(STACK), np.zeros((STACK, 3))
+
+
+@numba.njit(cache=True)
+def nearest(nodes, x, y, z, k, bound2, out_d2, out_at, work):
     """The ``k`` nearest tree points of ``(x, y, z)`` closer than ``sqrt(bound2)``: squared distances into
     ``out_d2 (k,)`` (ascending, ``inf`` where none) and tree-order positions into ``out_at (k,)`` (``n`` where
-    none). For compiled loops: ``nodes.rows[out_at]`` are the caller's rows."""
+    none); ``work``: :func:`scratch`. For compiled loops: ``nodes.rows[out_at]`` are the caller's rows. A node waits on the stack with the
+    squared distance from the query to its cell (the sum over the axes of the offsets to the splits that bound
+    it, Arya and Mount's incremental distance) and is skipped when that exceeds the current ``k``-th distance."""
     points, _, axis, split, first, last = nodes
     n = len(points)
     for t in range(k):
         out_d2[t], out_at[t] = np.inf, n
     worst = bound2
-    stack_node = np.empty(64, np.int64)
-    stack_bound = np.empty(64)
-    stack_node[0], stack_bound[0], top = 0, 0.0, 1
+    stack_node, stack_low, stack_off = work
+    stack_node[0], stack_low[0], top = 0, 0.0, 1
+    stack_off[0, 0] = stack_off[0, 1] = stack_off[0, 2] = 0.0
     while top:
         top -= 1
-        node, low = stack_node[top], stack_bound[top]
+        node, low = stack_node[top], stack_low[top]
         if low > worst:
             continue
         a = axis[node]
@@ -142,9 +154,16 @@ def nearest(nodes, x, y, z, k, bound2, out_d2, out_at):
             continue
         offset = (x if a == 0 else y if a == 1 else z) - split[node]
         near, far = (2 * node + 1, 2 * node + 2) if offset < 0 else (2 * node + 2, 2 * node + 1)
-        stack_node[top], stack_bound[top] = far, max(low, offset * offset)
-        stack_node[top + 1], stack_bound[top + 1] = near, low
-        top += 2
+        far_low = low - stack_off[top, a] ** 2 + offset * offset
+        if far_low <= worst:  # the far cell: the offset along this axis grows to the split's
+            stack_node[top], stack_low[top] = far, far_low
+            stack_off[top + 1] = stack_off[top]
+            stack_off[top, a] = abs(offset)
+            stack_node[top + 1], stack_low[top + 1] = near, low
+            top += 2
+        else:
+            stack_node[top], stack_low[top] = near, low
+            top += 1
 
 
 @numba.njit(cache=True)
@@ -154,8 +173,9 @@ def _query_rows(nodes, queries, k, bound, dist, idx, start, stop):
     bound2 = bound * bound if bound < np.inf else np.inf
     d2 = np.empty(k)
     at = np.empty(k, np.int64)
+    work = scratch()
     for i in range(start, stop):
-        nearest(nodes, queries[i, 0], queries[i, 1], queries[i, 2], k, bound2, d2, at)
+        nearest(nodes, queries[i, 0], queries[i, 1], queries[i, 2], k, bound2, d2, at, work)
         for t in range(k):
             found = at[t] < n
             dist[i, t] = math.sqrt(d2[t]) if found else np.inf
@@ -170,13 +190,17 @@ def _query(nodes, queries, k, bound):
 
 
 @numba.njit(cache=True, parallel=True)
-def _query_parallel(nodes, queries, k, bound):
+def _query_parallel(nodes, queries, k, bound, chunks):
     dist, idx = np.empty((len(queries), k)), np.empty((len(queries), k), np.int64)
-    chunks = 8 * numba.get_num_threads()
     per = (len(queries) + chunks - 1) // chunks
     for c in numba.prange(chunks):
         _query_rows(nodes, queries, k, bound, dist, idx, c * per, min((c + 1) * per, len(queries)))
     return dist, idx
+
+
+def chunks() -> int:
+    """How many pieces a parallel loop splits its work into: 8 per thread (uneven queries even out)."""
+    return 8 * numba.get_num_threads()
 
 
 class KdTree:
@@ -194,6 +218,8 @@ class KdTree:
         """``(distances, indices)`` of the ``k`` nearest points of each of ``queries (Q, 3)``: ``(Q,)`` each for
         ``k = 1``, else ``(Q, k)``, nearest first; beyond ``distance_upper_bound`` distance ``inf``, index ``n``."""
         queries = np.ascontiguousarray(queries, np.float64).reshape(-1, 3)
-        run = _query_parallel if len(queries) >= PARALLEL_QUERIES else _query
-        dist, idx = run(self.nodes, queries, int(k), float(distance_upper_bound))
+        if len(queries) >= PARALLEL_QUERIES:
+            dist, idx = _query_parallel(self.nodes, queries, int(k), float(distance_upper_bound), chunks())
+        else:
+            dist, idx = _query(self.nodes, queries, int(k), float(distance_upper_bound))
         return (dist[:, 0], idx[:, 0]) if k == 1 else (dist, idx)

@@ -12,7 +12,8 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    best refined answer is ambiguous, or when its fitness is below ``GlobalOptions.network_fitness`` (with
    ``GlobalOptions.network_doubt`` set, off by default: and the answer it would give is not trusted, its fitness
    below 0.45 or at least that likely wrong by step 6), and the global
-   search when still no answer reaches ``GlobalOptions.auto_fitness``; ``init="classical"`` refines the classical
+   search when still no answer reaches ``GlobalOptions.auto_fitness`` and the best one is not confirmed (reached
+   from a classical and from the network's start, nothing close to it: two independent starts agree); ``init="classical"`` refines the classical
    hypotheses alone (no network; the identity when they find none);
 3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.geometry.icp`) from
    each start on denser samples of the caller's clouds (``RefineOptions.points`` random source points and
@@ -168,7 +169,8 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
             local = starts_lib.local_start(network_params(), pair, cfg, num_iters)
         found += refined([local])
     if init == "global" or (init == "auto" and max((c.score[1] for c in found), default=0.0)
-                            < global_options.auto_fitness):
+                            < global_options.auto_fitness and (global_options.auto_fitness >= 1.0
+                                                               or not _confirmed(found))):
         with clock.stage("global"):
             screened = global_search.screen_hypotheses(network_params(), pair, dense, cfg, global_options,
                                                        max_dist_unit, seed)
@@ -197,6 +199,16 @@ def _needs_network(found: list, opts: options_lib.GlobalOptions) -> bool:
         return True
     ranked = candidates_lib.distinct(found)
     return ranked[0].score[1] < opts.network_fitness or candidates_lib.is_ambiguous(ranked)
+
+
+def _confirmed(found: list) -> bool:
+    """Whether the best distinct candidate is reached from a classical start and from the network's local start
+    alone (within ``AMBIGUITY_DEG``) and nothing else scores close to it: two independent starts agree."""
+    ranked = candidates_lib.distinct(found)
+    if candidates_lib.is_ambiguous(ranked):
+        return False
+    inits = candidates_lib.support(ranked[:1], found)[0]
+    return "classical" in inits and "local" in inits
 
 
 def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_points,

@@ -65,7 +65,8 @@ class GlobalOptions:
     (``p_wrong`` of :mod:`rpmnet_jax.pairwise.doubt`; 0, the default: whatever its doubt; 0.02 is 2–3x faster on
     partial pairs, see ``NETWORK_DOUBT``).
     The network's global search (``init="global"``, or ``"auto"`` when no candidate reaches a fitness of
-    ``auto_fitness``): ``hypotheses``, ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened
+    ``auto_fitness`` and the best is not confirmed by a classical and the network's own start together; at 1:
+    always): ``hypotheses``, ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened
     with ``iters`` network iterations on ``points`` per cloud and a short ICP on ``polish_points`` source
     points; the ``top_k`` best are refined.
     """
