@@ -15,10 +15,16 @@ against 0.31 s.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import NamedTuple
 
 import numba
 import numpy as np
+
+# Numba tries Intel TBB first for its parallel loops and says so when a system TBB is too old; it then runs them
+# on OpenMP (or its own pool) just as well: the notice is not for our users
+warnings.filterwarnings("ignore", message="The TBB threading layer requires TBB version",
+                        category=numba.NumbaWarning)
 
 LEAF = 12  # points per leaf at most
 PARALLEL_QUERIES = 2_000  # a query of at least this many points runs on every core (the ICP's too)
