@@ -142,7 +142,7 @@ def nearest(nodes, x, y, z, k, bound2, out_d2, out_at, work):
     while top:
         top -= 1
         node, low = stack_node[top], stack_low[top]
-        if low > worst:
+        if low > worst or (low == worst and out_d2[k - 1] == worst):  # nothing nearer there (ties: repeated points)
             continue
         a = axis[node]
         if a < 0:
@@ -161,7 +161,8 @@ def nearest(nodes, x, y, z, k, bound2, out_d2, out_at, work):
         offset = (x if a == 0 else y if a == 1 else z) - split[node]
         near, far = (2 * node + 1, 2 * node + 2) if offset < 0 else (2 * node + 2, 2 * node + 1)
         far_low = low - stack_off[top, a] ** 2 + offset * offset
-        if far_low <= worst:  # the far cell: the offset along this axis grows to the split's
+        if far_low < worst or (far_low == worst and out_d2[k - 1] > worst):  # the far cell: the offset along
+            # this axis grows to the split's
             stack_node[top], stack_low[top] = far, far_low
             stack_off[top + 1] = stack_off[top]
             stack_off[top, a] = abs(offset)
