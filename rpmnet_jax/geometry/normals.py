@@ -1,4 +1,4 @@
-"""Normal estimation for clouds that come without them (host-side NumPy/SciPy).
+"""Normal estimation for clouds that come without them (host-side NumPy/SciPy/Numba).
 
 PCA gives each point's normal line; its sign is made consistent over the surface by propagation along a
 minimum spanning tree of the ``k``-nearest-neighbour graph weighted by ``1 - |n_i · n_j|`` (Hoppe et al.
@@ -11,6 +11,7 @@ RPM-Net is trained on).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
@@ -50,10 +51,36 @@ def normals_at(points: np.ndarray, rows: np.ndarray, k: int = 16, tree: kdtree.K
 
 def _pca_normals(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """The direction of least spread of each neighbourhood ``points[idx] (R, k, 3)`` → ``(R, 3)``, unit."""
-    nbrs = points[idx]  # (R, k, 3)
-    c = [nbrs[..., i] - nbrs[..., i].mean(axis=1, keepdims=True) for i in range(3)]
-    cov = [np.einsum("nk,nk->n", c[i], c[j]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
-    return least_eigenvectors(*cov)
+    idx = np.ascontiguousarray(idx, np.int64).reshape(len(idx), -1)
+    return least_eigenvectors(*_covariances(np.ascontiguousarray(points, np.float64), idx))
+
+
+@numba.njit(cache=True)
+def _covariances(points, idx):
+    """The six entries ``(6, R)`` (xx, xy, xz, yy, yz, zz) of each neighbourhood's ``points[idx[r]]`` covariance
+    (unnormalised, about its mean): one pass per row, no ``(R, k, 3)`` gather (6x faster at k = 16)."""
+    out = np.empty((6, len(idx)))
+    k = idx.shape[1]
+    for r in range(len(idx)):
+        mx = my = mz = 0.0
+        for j in range(k):
+            q = idx[r, j]
+            mx += points[q, 0]
+            my += points[q, 1]
+            mz += points[q, 2]
+        mx, my, mz = mx / k, my / k, mz / k
+        xx = xy = xz = yy = yz = zz = 0.0
+        for j in range(k):
+            q = idx[r, j]
+            dx, dy, dz = points[q, 0] - mx, points[q, 1] - my, points[q, 2] - mz
+            xx += dx * dx
+            xy += dx * dy
+            xz += dx * dz
+            yy += dy * dy
+            yz += dy * dz
+            zz += dz * dz
+        out[0, r], out[1, r], out[2, r], out[3, r], out[4, r], out[5, r] = xx, xy, xz, yy, yz, zz
+    return out
 
 
 _DEGENERATE = 1e-10  # squared norm of the best row cross product (matrix scaled to max |entry| 1) below which
