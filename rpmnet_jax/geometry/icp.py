@@ -166,52 +166,26 @@ def _step(moved, ref, normals, src_normals, transform, dist, idx, gate, symmetri
 
 
 @numba.njit(cache=True)
-def _pair_up(nodes, src, transform, neighbours, bound2, moved, dist, idx, start, stop):
-    """Source points ``start..stop`` moved by ``transform`` into ``moved``, their ``neighbours`` nearest
-    reference points (k-d tree ``nodes``, within ``sqrt(bound2)``) into ``dist`` and ``idx`` (tree order)."""
-    d2 = np.empty(neighbours)
-    at = np.empty(neighbours, np.int64)
-    work = kdtree.scratch()
-    for i in range(start, stop):
-        for a in range(3):
-            moved[i, a] = (transform[a, 0] * src[i, 0] + transform[a, 1] * src[i, 1] + transform[a, 2] * src[i, 2]
-                           + transform[a, 3])
-        kdtree.nearest(nodes, moved[i, 0], moved[i, 1], moved[i, 2], neighbours, bound2, d2, at, work)
-        for t in range(neighbours):
-            dist[i, t] = math.sqrt(d2[t])
-            idx[i, t] = at[t]
-
-
-@numba.njit(cache=True, parallel=True)
-def _pair_up_parallel(nodes, src, transform, neighbours, bound2, moved, dist, idx, chunks):
-    """:func:`_pair_up` of every source point, in ``chunks`` pieces on every core."""
-    per = (len(src) + chunks - 1) // chunks
-    for c in numba.prange(chunks):
-        _pair_up(nodes, src, transform, neighbours, bound2, moved, dist, idx, c * per, min((c + 1) * per, len(src)))
-
-
-@numba.njit(cache=True)
-def _stage(src, nodes, normals, src_normals, transform, max_distance, scale, neighbours, symmetric,
+def _stage(src, ref, nodes, normals, src_normals, transform, max_distance, scale, neighbours, symmetric,
            max_iterations, rot_tolerance, shift_tolerance, chunks):
     """One stage of :func:`point_to_plane_icp`, compiled whole: each iteration moves ``src (N, 3)``, pairs each
-    point with its ``neighbours`` nearest points of the reference's k-d tree ``nodes`` (``normals`` in tree
-    order) within the stage's ceiling, gates them (:func:`_gate`) and takes the step (:func:`_step`). Returns
-    ``(transform, iterations, ended on the tolerance)``; a step with fewer than
-    ``MIN_PAIRS`` pairs ends the stage (not converged, transform kept)."""
+    point with its ``neighbours`` nearest points of ``ref (M, 3)`` (its k-d tree ``nodes``,
+    :func:`rpmnet_jax.geometry.kdtree.query_into` in ``chunks``) within the stage's ceiling, gates them
+    (:func:`_gate`) and takes the step (:func:`_step`). Returns ``(transform, iterations, ended on the
+    tolerance)``; a step with fewer than ``MIN_PAIRS`` pairs ends the stage (not converged, transform kept)."""
     ceiling = scale * max_distance
     n = len(src)
     moved = np.empty((n, 3))
     dist = np.empty((n, neighbours))
     idx = np.empty((n, neighbours), np.int64)
-    bound2 = ceiling * ceiling
     for iteration in range(1, max_iterations + 1):
-        if chunks > 1:
-            _pair_up_parallel(nodes, src, transform, neighbours, bound2, moved, dist, idx, chunks)
-        else:
-            _pair_up(nodes, src, transform, neighbours, bound2, moved, dist, idx, 0, n)
+        for i in range(n):
+            for a in range(3):
+                moved[i, a] = (transform[a, 0] * src[i, 0] + transform[a, 1] * src[i, 1]
+                               + transform[a, 2] * src[i, 2] + transform[a, 3])
+        kdtree.query_into(nodes, moved, neighbours, ceiling * ceiling, dist, idx, chunks)
         gate = _gate(dist, max_distance, scale)
-        step, rot, shift, pairs = _step(moved, nodes.points, normals, src_normals, transform, dist, idx, gate,
-                                        symmetric)
+        step, rot, shift, pairs = _step(moved, ref, normals, src_normals, transform, dist, idx, gate, symmetric)
         if pairs < MIN_PAIRS:
             return transform, iteration, False
         transform = step @ transform
@@ -233,7 +207,7 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
     """
     src = np.ascontiguousarray(src, np.float64)
     ref = np.asarray(ref, np.float64)
-    normals = np.asarray(ref_normals, np.float64)
+    normals = np.ascontiguousarray(ref_normals, np.float64)
     src_n = None if src_normals is None else np.ascontiguousarray(src_normals, np.float64)
     if not max_distance > 0:
         raise ValueError(f"max_distance must be > 0, got {max_distance}")
@@ -244,16 +218,15 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
     if src_n is not None and src_n.shape != src.shape:
         raise ValueError(f"src_normals {src_n.shape} do not match src {src.shape}")
     tree = ref_tree if ref_tree is not None else kdtree.KdTree(ref)
-    normals_in_tree_order = normals[tree.nodes.rows]
     radius = max(cloud.radius(src), 1e-12)
     transform = np.array(init, np.float64)
     total, converged = 0, True
     for scale in scales:
         fine = scale <= 1.0
         transform, iterations, stage_done = _stage(
-            src, tree.nodes, normals_in_tree_order, src_n if src_n is not None else np.zeros((0, 3)), transform,
+            src, tree.data, tree.nodes, normals, src_n if src_n is not None else np.zeros((0, 3)), transform,
             max_distance, scale, neighbours if fine else 1, src_n is not None and fine, max_iterations,
-            tolerance, tolerance * radius, kdtree.chunks() if len(src) >= kdtree.PARALLEL_QUERIES else 1)
+            tolerance, tolerance * radius, kdtree.chunks_for(len(src)))
         total += iterations
         converged &= stage_done
     return Refinement(transform, bool(converged), total)

@@ -1,7 +1,7 @@
 """The one k-d tree of the library, compiled with Numba, with SciPy's conventions.
 
-Numba, so that compiled loops query it point by point (the ICP's iteration is one compiled loop around its
-queries, :mod:`rpmnet_jax.geometry.icp`) and a query from Python is one compiled call. Median splits along the
+Numba, so that compiled loops query it (:func:`query_into`, :func:`nearest`; the ICP's iteration is one compiled
+loop around its queries, :mod:`rpmnet_jax.geometry.icp`) and a query from Python is one compiled call. Median splits along the
 widest axis down to leaves of ``LEAF`` points, stored in tree order; a query visits the nearer child first and
 skips a node whose splitting plane lies beyond its current ``k``-th distance. A missing neighbour (none within
 ``distance_upper_bound``) has distance ``inf`` and index ``n``, as in SciPy.
@@ -174,10 +174,10 @@ def nearest(nodes, x, y, z, k, bound2, out_d2, out_at, work):
 
 
 @numba.njit(cache=True)
-def _query_rows(nodes, queries, k, bound, dist, idx, start, stop):
+def _query_rows(nodes, queries, k, bound2, dist, idx, start, stop):
+    """Rows ``start..stop`` of :func:`query_into`."""
     rows = nodes.rows
     n = len(rows)
-    bound2 = bound * bound if bound < np.inf else np.inf
     d2 = np.empty(k)
     at = np.empty(k, np.int64)
     work = scratch()
@@ -189,25 +189,28 @@ def _query_rows(nodes, queries, k, bound, dist, idx, start, stop):
             idx[i, t] = rows[at[t]] if found else n
 
 
-@numba.njit(cache=True)
-def _query(nodes, queries, k, bound):
-    dist, idx = np.empty((len(queries), k)), np.empty((len(queries), k), np.int64)
-    _query_rows(nodes, queries, k, bound, dist, idx, 0, len(queries))
-    return dist, idx
-
-
 @numba.njit(cache=True, parallel=True)
-def _query_parallel(nodes, queries, k, bound, chunks):
-    dist, idx = np.empty((len(queries), k)), np.empty((len(queries), k), np.int64)
+def _query_parallel(nodes, queries, k, bound2, dist, idx, chunks):
     per = (len(queries) + chunks - 1) // chunks
     for c in numba.prange(chunks):
-        _query_rows(nodes, queries, k, bound, dist, idx, c * per, min((c + 1) * per, len(queries)))
-    return dist, idx
+        _query_rows(nodes, queries, k, bound2, dist, idx, c * per, min((c + 1) * per, len(queries)))
 
 
-def chunks() -> int:
-    """How many pieces a parallel loop splits its work into: 8 per thread (uneven queries even out)."""
-    return 8 * numba.get_num_threads()
+@numba.njit(cache=True)
+def query_into(nodes, queries, k, bound2, dist, idx, chunks):
+    """The ``k`` nearest tree points of each of ``queries (Q, 3)`` closer than ``sqrt(bound2)``, written into
+    ``dist, idx (Q, k)`` (the caller's rows; ``inf`` and ``n`` where none): in ``chunks`` pieces on every core,
+    or in one when ``chunks`` is 1 (:func:`chunks_for`). For compiled loops and :meth:`KdTree.query` alike."""
+    if chunks > 1:
+        _query_parallel(nodes, queries, k, bound2, dist, idx, chunks)
+    else:
+        _query_rows(nodes, queries, k, bound2, dist, idx, 0, len(queries))
+
+
+def chunks_for(count: int) -> int:
+    """How many pieces :func:`query_into` splits ``count`` queries into: 1 below ``PARALLEL_QUERIES``, else 8 per
+    thread (uneven queries even out)."""
+    return 8 * numba.get_num_threads() if count >= PARALLEL_QUERIES else 1
 
 
 class KdTree:
@@ -225,8 +228,6 @@ class KdTree:
         """``(distances, indices)`` of the ``k`` nearest points of each of ``queries (Q, 3)``: ``(Q,)`` each for
         ``k = 1``, else ``(Q, k)``, nearest first; beyond ``distance_upper_bound`` distance ``inf``, index ``n``."""
         queries = np.ascontiguousarray(queries, np.float64).reshape(-1, 3)
-        if len(queries) >= PARALLEL_QUERIES:
-            dist, idx = _query_parallel(self.nodes, queries, int(k), float(distance_upper_bound), chunks())
-        else:
-            dist, idx = _query(self.nodes, queries, int(k), float(distance_upper_bound))
+        dist, idx = np.empty((len(queries), k)), np.empty((len(queries), k), np.int64)
+        query_into(self.nodes, queries, int(k), float(distance_upper_bound) ** 2, dist, idx, chunks_for(len(queries)))
         return (dist[:, 0], idx[:, 0]) if k == 1 else (dist, idx)
