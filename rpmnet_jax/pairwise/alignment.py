@@ -9,9 +9,9 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    with a short ICP and keeps the ``top_k`` best (:class:`~rpmnet_jax.pairwise.options.GlobalOptions`);
    ``init="auto"`` (default) refines up to ``GlobalOptions.classical`` FPFH + RANSAC hypotheses
    (:mod:`rpmnet_jax.geometry.feature_ransac`: rotation invariant, cheap) first, adds the local start when the
-   best refined answer is ambiguous, or when its fitness is below ``GlobalOptions.network_fitness`` (with
-   ``GlobalOptions.network_doubt`` set, off by default: and the answer it would give is not trusted, its fitness
-   below 0.45 or at least that likely wrong by step 6), and the global
+   best refined answer is ambiguous, or when its fitness is below ``GlobalOptions.network_fitness`` and the
+   answer it would give is not trusted (another classical hypothesis ended elsewhere, its fitness below 0.45, or
+   at least ``GlobalOptions.network_doubt`` likely wrong by step 6), and the global
    search when still no answer reaches ``GlobalOptions.auto_fitness`` and the best one is not confirmed (reached
    from a classical and from the network's start, nothing close to it: two independent starts agree); ``init="classical"`` refines the classical
    hypotheses alone (no network; the identity when they find none);
@@ -184,10 +184,10 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
 
 
 def _trusted(answer: "Alignment", opts: options_lib.GlobalOptions) -> bool:
-    """Whether a weak classical ``answer`` (fitness below ``opts.network_fitness``) stands without the network: not
-    ambiguous, its fitness at least ``options.NETWORK_DOUBT_FLOOR`` and its ``p_wrong`` below
-    ``opts.network_doubt``."""
-    return (not answer.ambiguous and answer.fitness >= options_lib.NETWORK_DOUBT_FLOOR
+    """Whether a weak classical ``answer`` (fitness below ``opts.network_fitness``) stands without the network:
+    unopposed (every classical hypothesis ended in it: one distinct candidate), its fitness at least
+    ``options.NETWORK_DOUBT_FLOOR`` and its ``p_wrong`` below ``opts.network_doubt``."""
+    return (len(answer.candidates) == 1 and answer.fitness >= options_lib.NETWORK_DOUBT_FLOOR
             and answer.p_wrong < opts.network_doubt)
 
 

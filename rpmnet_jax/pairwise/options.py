@@ -45,9 +45,12 @@ class RefineOptions:
         return {f: getattr(self, f) for f in fields if getattr(self, f) is not None}
 
 
-NETWORK_DOUBT = 0.0  # off: at 0.02 the public partial pairs keep every accuracy row with a third of the network runs,
-# but the bunny pair bun270 -> bun180 keeps a classical answer 45.7 deg off (fitness 0.57, p_wrong 0.005) that the
-# network fixes (docs/results.md#when-the-network-runs)
+NETWORK_DOUBT = 0.02  # a weak classical answer stands without the network when its p_wrong is below this and it is
+# unopposed (every classical hypothesis ended in it); on the public sets' partial test pairs the network then runs on
+# 78 of 610 pairs instead of 173, every accuracy row the same. Without "unopposed" the doubt model, fitted on crops of
+# whole shapes, trusts wrong answers of range scans: bun270 -> bun180 45.7 deg off (fitness 0.57, p_wrong 0.005, 4
+# distinct classical answers), 13 of 24 trusted answers wrong on simulated scan pairs of training meshes
+# (docs/results.md#when-the-network-runs)
 NETWORK_DOUBT_FLOOR = 0.45  # below this fitness a weak answer runs the network whatever its doubt: the doubt model
 # misses a lone wrong answer of low fitness (a planted 150-164 deg hypothesis at 0.14-0.28: p_wrong 0.01-0.04); the
 # weak answers it trusts on the public sets' partial pairs have fitness 0.457 and up
@@ -62,8 +65,8 @@ class GlobalOptions:
     ``auto`` refines them first and runs the network from the identity only when the best one is ambiguous (a
     flip scores close to it), or when its fitness is below ``network_fitness`` (always at 1) and either below
     ``NETWORK_DOUBT_FLOOR`` (0.45) or the answer it would give is at least ``network_doubt`` likely wrong
-    (``p_wrong`` of :mod:`rpmnet_jax.pairwise.doubt`; 0, the default: whatever its doubt; 0.02 is 2–3x faster on
-    partial pairs, see ``NETWORK_DOUBT``).
+    (``p_wrong`` of :mod:`rpmnet_jax.pairwise.doubt`, default 0.02) or another classical hypothesis ended
+    elsewhere (0: the network runs on every weak answer; see ``NETWORK_DOUBT``).
     The network's global search (``init="global"``, or ``"auto"`` when no candidate reaches a fitness of
     ``auto_fitness`` and the best is not confirmed by a classical and the network's own start together; at 1:
     always): ``hypotheses``, ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened
