@@ -1,0 +1,113 @@
+"""When may ``init="auto"`` keep a weak classical answer without running the network? The measurement behind
+``alignment._trusted`` and ``options.NETWORK_DOUBT``.
+
+    python -m experiments.network_trust [--data-roots ../shared/data/modelnet40_real_subset,...]
+        [--meshes 16] [--scans 12] [--output network_trust.jsonl]
+
+Runs ``align(init="classical")`` (the answer ``auto`` would keep) on two kinds of pairs and records, per pair, its
+rotation error, fitness, ``p_wrong`` and number of distinct candidates:
+
+- crops: every partial test pair of each data root, ±45° and any orientation (the public accuracy rows);
+- range scans: simulated range scans (:func:`rpmnet_jax.data.range_scans.simulate`, 12 per mesh, 240 × 240, 0.5 mm
+  noise) of Poisson meshes of TRAINING shapes (``experiments.fit_edge_doubt.TRAIN_ROWS``; never the bunny), every
+  pair whose view directions lie 40–120° apart, at full density and sampled to 1,024 points.
+
+Prints one JSON line per kind and rule: of the weak answers (a classical hypothesis found, its refined answer's
+fitness below ``network_fitness`` or ambiguous; with none found ``auto`` runs the network anyway) how many each
+rule trusts and how many of those are more than 5° off. The rules: the doubt model alone (``p_wrong``
+below the bar, fitness at least ``NETWORK_DOUBT_FLOOR``, not ambiguous), and the same answer also unopposed (one
+distinct candidate: every classical hypothesis ended in it), the default.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+
+import numpy as np
+
+VIEW_ANGLES = (40.0, 120.0)
+SAMPLE = 1024
+
+
+def _record(a, gt, **meta) -> dict:
+    from rpmnet_jax.ops import se3
+    return {**meta, "error_deg": float(se3.rotation_angle_deg(a.transform[:3, :3] @ gt[:3, :3].T)),
+            "fitness": float(a.fitness), "p_wrong": float(a.p_wrong), "ambiguous": bool(a.ambiguous),
+            "distinct": len(a.candidates), "init": a.init}
+
+
+def crop_records(root: str):
+    from rpmnet_jax import data
+    from rpmnet_jax.pairwise import alignment
+    for rot in (45.0, 180.0):
+        ds = data.ModelNet40(root, "val", "partial", rot_mag=rot)
+        for i in range(len(ds)):
+            d = ds[i]
+            s, r = (np.asarray(d[k], np.float64) for k in ("points_src", "points_ref"))
+            a = alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], init="classical",
+                                num_points=max(len(s), len(r)))
+            yield _record(a, np.asarray(d["transform_gt"], np.float64), kind="crops", set=root, rot_mag=rot, idx=i)
+
+
+def scan_records(num_meshes: int, num_scans: int):
+    from experiments import fit_edge_doubt
+    from rpmnet_jax.data import range_scans
+    from rpmnet_jax.pairwise import alignment
+    rows = list(fit_edge_doubt.TRAIN_ROWS)[:num_meshes]
+    meshes = fit_edge_doubt.meshes(fit_edge_doubt.DATA_ROOT, rows)
+    for row in rows:
+        scans = range_scans.simulate(*meshes[row], num_scans, image_size=240, noise=0.0005, seed=row)
+        for i, j in itertools.combinations(range(len(scans)), 2):
+            angle = np.degrees(np.arccos(np.clip(scans[i].pose[:3, 2] @ scans[j].pose[:3, 2], -1.0, 1.0)))
+            if not VIEW_ANGLES[0] <= angle <= VIEW_ANGLES[1] or min(len(scans[i].points), len(scans[j].points)) < 500:
+                continue
+            gt = np.linalg.inv(scans[j].pose) @ scans[i].pose
+            src, ref = scans[i].points, scans[j].points
+            yield _record(alignment.align(src, ref, init="classical"), gt, kind="scans", mesh=row, i=i, j=j)
+            rng = np.random.default_rng(100 * i + j)
+            src, ref = (p[rng.choice(len(p), min(len(p), SAMPLE), replace=False)] for p in (src, ref))
+            yield _record(alignment.align(src, ref, init="classical"), gt, kind="scans_1024", mesh=row, i=i, j=j)
+
+
+def summary(records: list) -> list:
+    """Per kind and rule: weak answers, trusted ones and the wrong among them."""
+    from rpmnet_jax.pairwise import options
+    opts = options.GlobalOptions()
+    out = []
+    for kind in sorted({r["kind"] for r in records}):
+        found = [r for r in records if r["kind"] == kind and r["init"] != "identity"]  # else the network runs anyway
+        weak = [r for r in found if r["fitness"] < opts.network_fitness or r["ambiguous"]]
+        doubt_only = lambda r: (not r["ambiguous"] and r["fitness"] >= options.NETWORK_DOUBT_FLOOR
+                                and r["p_wrong"] < opts.network_doubt)
+        for rule, keep in (("doubt model", doubt_only), ("doubt model + unopposed", lambda r: doubt_only(r)
+                                                          and r["distinct"] == 1)):
+            trusted = [r for r in weak if keep(r)]
+            out.append({"kind": kind, "rule": rule, "pairs": sum(r["kind"] == kind for r in records),
+                        "no_hypothesis": sum(r["kind"] == kind for r in records) - len(found), "weak": len(weak), "weak_wrong": sum(r["error_deg"] > 5.0 for r in weak),
+                        "trusted": len(trusted), "trusted_wrong": sum(r["error_deg"] > 5.0 for r in trusted)})
+    return out
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data-roots", default="../shared/data/modelnet40_real_subset,../shared/data/real_meshes_train")
+    p.add_argument("--meshes", type=int, default=16, help="training meshes to scan (of fit_edge_doubt.TRAIN_ROWS)")
+    p.add_argument("--scans", type=int, default=12, help="simulated scans per mesh")
+    p.add_argument("--output", default=None, help="JSON lines: one record per pair")
+    a = p.parse_args(argv)
+    records = []
+    sources = [crop_records(root) for root in a.data_roots.split(",") if root]
+    sources.append(scan_records(a.meshes, a.scans) if a.meshes > 0 else iter(()))
+    for rec in itertools.chain(*sources):
+        records.append(rec)
+    if a.output:
+        with open(a.output, "w") as f:
+            f.writelines(json.dumps(r) + "\n" for r in records)
+    for line in summary(records):
+        print(json.dumps(line))
+
+
+if __name__ == "__main__":
+    main()
