@@ -1,7 +1,12 @@
 """The library's k-d tree: SciPy's neighbours and conventions (missing: ``inf``, index ``n``) for few and many
 queries, repeated points, tiny and empty clouds; the compiled query; pickling."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
+import pytest
 from scipy.spatial import cKDTree
 
 from rpmnet_jax.geometry import kdtree
@@ -75,3 +80,31 @@ def test_the_compiled_query_gives_tree_positions_of_the_nearest():
     np.testing.assert_array_equal(tree.nodes.points[at], points[i])
     kdtree.nearest(tree.nodes, 5.0, 5.0, 5.0, 4, 1.0, d2, at, kdtree.scratch())  # nothing within 1
     assert np.all(np.isinf(d2)) and np.all(at == 500)
+
+
+_QUERY = """
+import numpy as np
+from rpmnet_jax.geometry import kdtree
+x = np.random.default_rng(0).normal(size=(5000, 3))
+print("ok", kdtree.KdTree(x).query(x, k=3)[0].shape == (5000, 3))
+"""
+_SMALL_ICP = """
+import numpy as np
+from rpmnet_jax.geometry import icp, kdtree
+x = np.random.default_rng(0).normal(size=(1000, 3))
+x /= np.linalg.norm(x, axis=1, keepdims=True)
+print("ok", icp.point_to_plane_icp(x, x, x.copy(), np.eye(4), 0.05, ref_tree=kdtree.KdTree(x)).converged)
+"""
+
+
+@pytest.mark.slow  # three processes that compile or load the tree and the ICP
+def test_compiled_code_loaded_from_numbas_cache_runs_in_a_new_process(tmp_path):
+    """New processes sharing one Numba cache, as a Dask run's client and workers do: the first queries 5,000
+    points (on the thread pool; the query's compiled code goes to the cache), the second runs an ICP of 1,000 (no
+    query reaches the pool; its stage is compiled against the cached query and cached too), the third runs it
+    again, everything loaded from the cache. The third used to jump to address 0 (SIGSEGV; a Dask worker died
+    that way on a second run) until every query from Python started the pool first (``kdtree.chunks_for``)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    for step, code in (("query", _QUERY), ("ICP, compiled", _SMALL_ICP), ("ICP, from the cache", _SMALL_ICP)):
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=900)
+        assert out.returncode == 0 and out.stdout.strip() == "ok True", (step, out.returncode, out.stderr[-1500:])

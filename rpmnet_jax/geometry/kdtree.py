@@ -209,8 +209,12 @@ def query_into(nodes, queries, k, bound2, dist, idx, chunks):
 
 def chunks_for(count: int) -> int:
     """How many pieces :func:`query_into` splits ``count`` queries into: 1 below ``PARALLEL_QUERIES``, else 8 per
-    thread (uneven queries even out)."""
-    return 8 * numba.get_num_threads() if count >= PARALLEL_QUERIES else 1
+    thread (uneven queries even out). Every call from Python into code that holds :func:`query_into` goes through
+    here, so this is also where Numba's thread pool is started: compiled code loaded from Numba's on-disk cache
+    into a fresh process calls the pool's functions through addresses bound only once it has started (before, an
+    ICP of fewer than ``PARALLEL_QUERIES`` points in a new process, such as a Dask worker, jumped to address 0)."""
+    threads = numba.get_num_threads()  # starts the pool when it has not started yet
+    return 8 * threads if count >= PARALLEL_QUERIES else 1
 
 
 class KdTree:
