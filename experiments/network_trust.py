@@ -77,15 +77,16 @@ def summary(records: list) -> list:
     opts = options.GlobalOptions()
     out = []
     for kind in sorted({r["kind"] for r in records}):
-        found = [r for r in records if r["kind"] == kind and r["init"] != "identity"]  # else the network runs anyway
+        of_kind = [r for r in records if r["kind"] == kind]
+        found = [r for r in of_kind if r["init"] != "identity"]  # none found: the network runs anyway
         weak = [r for r in found if r["fitness"] < opts.network_fitness or r["ambiguous"]]
         doubt_only = lambda r: (not r["ambiguous"] and r["fitness"] >= options.NETWORK_DOUBT_FLOOR
                                 and r["p_wrong"] < opts.network_doubt)
         for rule, keep in (("doubt model", doubt_only), ("doubt model + unopposed", lambda r: doubt_only(r)
                                                           and r["distinct"] == 1)):
             trusted = [r for r in weak if keep(r)]
-            out.append({"kind": kind, "rule": rule, "pairs": sum(r["kind"] == kind for r in records),
-                        "no_hypothesis": sum(r["kind"] == kind for r in records) - len(found), "weak": len(weak), "weak_wrong": sum(r["error_deg"] > 5.0 for r in weak),
+            out.append({"kind": kind, "rule": rule, "pairs": len(of_kind), "no_hypothesis": len(of_kind) - len(found),
+                        "weak": len(weak), "weak_wrong": sum(r["error_deg"] > 5.0 for r in weak),
                         "trusted": len(trusted), "trusted_wrong": sum(r["error_deg"] > 5.0 for r in trusted)})
     return out
 
@@ -97,11 +98,9 @@ def main(argv=None) -> None:
     p.add_argument("--scans", type=int, default=12, help="simulated scans per mesh")
     p.add_argument("--output", default=None, help="JSON lines: one record per pair")
     a = p.parse_args(argv)
-    records = []
     sources = [crop_records(root) for root in a.data_roots.split(",") if root]
     sources.append(scan_records(a.meshes, a.scans) if a.meshes > 0 else iter(()))
-    for rec in itertools.chain(*sources):
-        records.append(rec)
+    records = list(itertools.chain(*sources))
     if a.output:
         with open(a.output, "w") as f:
             f.writelines(json.dumps(r) + "\n" for r in records)

@@ -47,10 +47,11 @@ class RefineOptions:
 
 NETWORK_DOUBT = 0.02  # a weak classical answer stands without the network when its p_wrong is below this and it is
 # unopposed (every classical hypothesis ended in it); on the public sets' partial test pairs the network then runs on
-# 78 of 610 pairs instead of 173, every accuracy row the same. Without "unopposed" the doubt model, fitted on crops of
+# 77 of 610 pairs instead of 172, every accuracy row the same. Without "unopposed" the doubt model, fitted on crops of
 # whole shapes, trusts wrong answers of range scans: bun270 -> bun180 45.7 deg off (fitness 0.57, p_wrong 0.005, 4
-# distinct classical answers), 13 of 24 trusted answers wrong on simulated scan pairs of training meshes
-# (docs/results.md#when-the-network-runs)
+# distinct classical answers), 27 of its 48 trusted answers wrong on simulated scan pairs of training meshes (with
+# "unopposed": 2 trusted, both wrong with the network too; python -m experiments.network_trust,
+# docs/results.md#when-the-network-runs)
 NETWORK_DOUBT_FLOOR = 0.45  # below this fitness a weak answer runs the network whatever its doubt: the doubt model
 # misses a lone wrong answer of low fitness (a planted 150-164 deg hypothesis at 0.14-0.28: p_wrong 0.01-0.04); the
 # weak answers it trusts on the public sets' partial pairs have fitness 0.457 and up
