@@ -74,21 +74,31 @@ def test_gradient_is_finite_when_a_channel_is_dead():
 
 
 @pytest.mark.slow
-def test_fused_training_gradients_are_closer_to_float64_than_float32_autodiff():
-    """On the official fixture, float32 fused gradients sit within 1e-5 of the float64 ones."""
+def test_fused_training_gradients_are_no_farther_from_float64_than_float32_autodiff():
+    """On the official fixture, every float32 fused gradient is as close to the float64 one as float32 autodiff's
+    is (to 1e-5 relative), and the two float32 paths agree to 1e-5.
+
+    A few GroupNorm-adjacent bias gradients are sums of nearly cancelling terms whose float32 value depends on
+    the reduction order XLA picks: with jax 0.10.1 both paths sat ~2e-6 from float64, with 0.10.2 both repeat
+    torch's float32 rounding (4e-3 from float64 on ``prepool.7.bias``). Either way the fused backward must not
+    add error of its own."""
     fixtures = require_fixtures()
     f = np.load(fixtures / "parity_partial.npz")
     sd = {k[len("param/"):]: f[k] for k in f.files if k.startswith("param/")}
     batch = {k: f[k] for k in ["points_src", "points_ref", "transform_gt"]}
-    cfg = rpmnet_jax.RPMNetConfig(fused_prepool=True)
-    grad = lambda p, b: convert.params_to_torch(jax.jit(jax.grad(lambda p, b: losses.training_loss(p, b, cfg)))(p, b))
-    fused32 = grad(convert.params_from_torch(sd), batch)
+
+    def grad(params, b, fused):
+        cfg = rpmnet_jax.RPMNetConfig(fused_prepool=fused)
+        return convert.params_to_torch(jax.jit(jax.grad(lambda p, b_: losses.training_loss(p, b_, cfg)))(params, b))
+
+    fused32, auto32 = (grad(convert.params_from_torch(sd), batch, fused) for fused in (True, False))
     with float64():
         p64 = jax.tree.map(lambda a: jnp.asarray(np.asarray(a, np.float64)), convert.params_from_torch(sd))
-        exact = grad(p64, {k: np.asarray(v, np.float64) for k, v in batch.items()})
+        exact = grad(p64, {k: np.asarray(v, np.float64) for k, v in batch.items()}, False)
+    rel = lambda a, b: np.linalg.norm(np.asarray(a, np.float64) - b) / np.linalg.norm(b)
     for name, g in fused32.items():
-        rel = np.linalg.norm(g - exact[name]) / np.linalg.norm(exact[name])
-        assert rel <= 1e-5, f"{name}: {rel:.1e}"
+        assert rel(g, exact[name]) <= rel(auto32[name], exact[name]) + 1e-5, name
+        assert rel(g, auto32[name]) <= 1e-5, name
 
 
 def test_first_argmax_is_jnp_argmax_with_ties():
