@@ -60,3 +60,57 @@ def test_is_ambiguous_when_a_second_answer_reaches_the_share_of_the_best():
     assert not candidates.is_ambiguous([best, _candidate(90.0, share * 0.8 - 1e-3)])
     assert not candidates.is_ambiguous([best])
     assert not candidates.is_ambiguous([_candidate(0.0, 0.0), _candidate(90.0, 0.0)])  # nothing fits at all
+
+
+def _dense_pair():
+    """An asymmetric shape and a rotated partial copy, prepared as ``align`` prepares them: ``(inputs, rot)``."""
+    from conftest import asymmetric_shape
+    pts, nrm = asymmetric_shape(2, 4000)
+    rot = rotation_about([0.3, 1.0, 0.2], 30.0)
+    return prepare.for_alignment(pts[:3000], pts[1000:] @ rot.T, nrm[:3000], nrm[1000:] @ rot.T, num_points=1024,
+                                 sampling="random", seed=0, reestimate_normals=False, centering="separate",
+                                 icp=True, dense_points=5000, max_correspondence_distance=None,
+                                 relative_distance=0.05), rot
+
+
+def _start(t44, init="classical"):
+    from rpmnet_jax.pairwise import starts
+    return starts.Start(init, t44[None, :3], 0.5, t44)
+
+
+def test_a_refinement_checked_in_pieces_ends_where_one_run_ends():
+    """With a bar nothing falls below, the pieces (half a stage, the rest, the fine stage) give one run's answer."""
+    from rpmnet_jax import RefineOptions
+    inputs, _ = _dense_pair()
+    start = np.eye(4)
+    start[:3, :3] = rotation_about([1.0, 0.0, 0.0], 8.0)
+    whole, whole_score = candidates._icp_unless_hopeless(inputs.dense, start, inputs.max_distance_unit,
+                                                         RefineOptions(), None)
+    pieces, pieces_score = candidates._icp_unless_hopeless(inputs.dense, start, inputs.max_distance_unit,
+                                                           RefineOptions(), 0.0)
+    np.testing.assert_allclose(pieces.transform, whole.transform, atol=1e-12)
+    assert (pieces.converged, pieces.num_iterations, pieces_score) == (whole.converged, whole.num_iterations,
+                                                                       whole_score)
+
+
+def test_a_hopeless_candidate_after_a_strong_one_stops_early_and_the_strong_one_wins():
+    from rpmnet_jax import RefineOptions
+    from rpmnet_jax.ops import se3
+    inputs, rot = _dense_pair()
+    good = np.eye(4)
+    good[:3, :3] = rot @ rotation_about([1.0, 0.0, 0.0], 5.0)  # near the truth: refines to a strong answer
+    bad = np.eye(4)
+    bad[:3, :3] = rot @ rotation_about([0.0, 0.0, 1.0], 150.0)  # far off: it cannot win
+    args = (inputs.dense, inputs.max_distance_unit, "icp", RefineOptions())
+    never = candidates.refine_starts([_start(good), _start(bad)], *args)
+    checked = candidates.refine_starts([_start(good), _start(bad)], *args, strong=0.6)
+    assert never[0].score[1] >= 0.6  # the strong one, refined as before
+    np.testing.assert_array_equal(checked[0].transform, never[0].transform)
+    assert checked[0].score == never[0].score
+    assert checked[1].num_iterations < never[1].num_iterations  # the hopeless one stopped early
+    assert checked[1].score[0] < candidates.HOPELESS_SHARE * checked[0].score[0]
+    assert not checked[1].converged
+    assert se3.rotation_angle_deg(checked[0].transform[:3, :3] @ rot.T) < 1.0  # the normalised frame keeps rotations
+    # a candidate before any strong one is never checked
+    first = candidates.refine_starts([_start(bad), _start(good)], *args, strong=0.6)
+    assert first[0].num_iterations == never[1].num_iterations

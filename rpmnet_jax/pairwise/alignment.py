@@ -144,9 +144,9 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
 
     # 2-3. starts, each refined and scored as it comes: classical first, the network when they are weak, the
     # network's global search when still no answer is good
-    def refined(starts) -> list:
+    def refined(starts, strong: float = 1.0) -> list:
         with clock.stage("refine"):
-            return candidates_lib.refine_starts(starts, dense, max_dist_unit, refine, refine_options)
+            return candidates_lib.refine_starts(starts, dense, max_dist_unit, refine, refine_options, strong)
 
     found = []
     if init != "local":
@@ -156,7 +156,8 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
                 classical = starts_lib.classical_starts(pair, global_options.classical, seed)
         if not classical and init in ("classical", "global"):  # no hypothesis: the clouds as they lie
             classical = [starts_lib.identity_start()]
-        found += refined(classical) if classical else []
+        strong = global_options.network_fitness if init == "auto" else 1.0  # auto ends on a strong answer
+        found += refined(classical, strong) if classical else []
     if (init == "auto" and found and 0 < global_options.network_doubt and global_options.network_fitness < 1.0
             and _needs_network(found, global_options)):
         with clock.stage("refine"):  # the answer the classical candidates give: kept when it is not in doubt

@@ -48,23 +48,60 @@ SLID_SHARE = 0.5  # a refined candidate scoring below this share of its own star
 # on 20 of real_meshes_train's noisy pairs, one at 3.2 deg)
 
 
+HOPELESS_SHARE = 1 / 3  # a candidate scoring below this share of a strong earlier one at a check stops refining
+
+
 def refine_starts(starts, dense: prepare.DenseClouds | None, max_dist_unit: float, refine: str,
-                  refine_options: options_lib.RefineOptions) -> list:
+                  refine_options: options_lib.RefineOptions, strong: float = 1.0) -> list:
     """Each :class:`~rpmnet_jax.pairwise.starts.Start` → a scored :class:`Candidate`: ICP on ``dense`` for
-    ``refine="icp"`` (the start kept where the ICP slid away from it), else the start as it is."""
+    ``refine="icp"`` (the start kept where the ICP slid away from it), else the start as it is.
+
+    Once a candidate's fitness reaches ``strong`` (1: never), each later one's ICP is checked halfway through its
+    first stage and after its coarse stages: one whose tight score is then below ``HOPELESS_SHARE`` of that
+    candidate's stops there (it cannot win, and a strong answer runs neither the trust rule nor the network)."""
     out = []
     for s in starts:
         start = se3.to_homogeneous(s.transform)
         final, converged, iters = start, True, 0
         score = selection_score(dense, start, max_dist_unit) if dense is not None else UNREFINED_SCORE
         if refine == "icp":
-            r = _icp(dense, start, max_dist_unit, **refine_options.icp_kwargs())
+            bar = max((c.score[0] for c in out if c.score[1] >= strong), default=None)
+            r, refined_score = _icp_unless_hopeless(dense, start, max_dist_unit, refine_options, bar)
             converged, iters = r.converged, r.num_iterations
-            refined_score = selection_score(dense, r.transform, max_dist_unit)
             if refined_score[0] >= SLID_SHARE * score[0]:  # else it slid away: the start is kept
                 final, score = r.transform, refined_score
         out.append(Candidate(final, score, s.init, s.network_transforms, s.confidence, converged, iters))
     return out
+
+
+def _icp_unless_hopeless(dense, start, max_dist_unit, refine_options, bar) -> tuple:
+    """``(icp.Refinement, selection score)`` of the ICP from ``start``; with a ``bar`` (a strong candidate's tight
+    score), in pieces that give the same answer as one run: the first stage's first half, the rest of the coarse
+    stages, the fine ones; it stops at a piece's end while scoring below ``HOPELESS_SHARE × bar``."""
+    kwargs = refine_options.icp_kwargs()
+    scales = tuple(kwargs.pop("scales", icp.PAIR.scales))
+    iterations = kwargs.pop("max_iterations", icp.PAIR.max_iterations)
+    if bar is None:
+        r = _icp(dense, start, max_dist_unit, scales=scales, max_iterations=iterations, **kwargs)
+        return r, selection_score(dense, r.transform, max_dist_unit)
+    coarse = max(1, sum(sc > 1.0 for sc in scales))
+    half = max(1, iterations // 2)
+    first = _icp(dense, start, max_dist_unit, scales=scales[:1], max_iterations=half, **kwargs)
+    transform, total = first.transform, first.num_iterations
+    ended = first.converged or first.num_iterations < half  # the first stage ended within its first half
+    pieces = [(scales[:1], iterations - half, ended), (scales[1:coarse], iterations, False),
+              (scales[coarse:], iterations, False)]
+    converged = first.converged if ended else True
+    score = selection_score(dense, transform, max_dist_unit)
+    for piece, its, skip in pieces:
+        if skip or not piece or its < 1:
+            continue
+        if score[0] < HOPELESS_SHARE * bar:
+            return icp.Refinement(transform, False, total), score
+        r = _icp(dense, transform, max_dist_unit, scales=piece, max_iterations=its, **kwargs)
+        transform, total, converged = r.transform, total + r.num_iterations, converged and r.converged
+        score = selection_score(dense, transform, max_dist_unit)
+    return icp.Refinement(transform, converged, total), score
 
 
 AMBIGUITY_DEG = 10.0  # candidates whose rotations lie closer than this are one answer (the better one kept)
