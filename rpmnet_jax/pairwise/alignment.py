@@ -19,7 +19,8 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    each start on denser samples of the caller's clouds (``RefineOptions.points`` random source points and
    up to ``prepare.REFERENCE_FACTOR`` × as many of the reference); the
    :class:`~rpmnet_jax.pairwise.candidates.Candidate` with the best
-   :func:`~rpmnet_jax.pairwise.candidates.selection_score` wins;
+   :func:`~rpmnet_jax.pairwise.candidates.selection_score` wins (with ``init="auto"``, a classical candidate
+   that falls below a third of a strong one's score stops refining early: it cannot win);
    ``refine="none"`` returns the winning start as it is (with ``init="local"``: the network's answer, the
    paper's method);
 4. score: fitness, inlier RMSE and correspondences of the answer on the full clouds, as Open3D's
