@@ -63,9 +63,8 @@ def main() -> None:
             elapsed = time.perf_counter() - t0
             if i == 0:  # warm-up: first imports and every compilation (the network's local and global paths too)
                 if method == "rpmnet_auto":
-                    for init in ("local", "global"):
-                        alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params, init=init,
-                                        num_points=max(len(s), len(r)))
+                    bench_utils.warm_align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params,
+                                           num_points=max(len(s), len(r)))
                 continue
             seconds.append(elapsed)
             errors.append(float(se3.rotation_angle_deg(np.asarray(transform)[:3, :3] @ gt[:3, :3].T)))

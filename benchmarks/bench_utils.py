@@ -189,6 +189,14 @@ def compile_jax(jitted, *args):
     return compiled, time.perf_counter() - t0
 
 
+def warm_align(src, ref, src_normals=None, ref_normals=None, **kwargs) -> None:
+    """Pays every compilation :func:`rpmnet_jax.align` can meet on clouds of these sizes before a timed run: the
+    classical path, the network from the identity and its global search."""
+    from rpmnet_jax.pairwise import alignment
+    for init in ("auto", "local", "global"):
+        alignment.align(src, ref, src_normals, ref_normals, init=init, **kwargs)
+
+
 def time_jax(jitted, *args, repeats: int, max_seconds: float | None = None) -> dict:
     """:func:`timed` of a jitted function, compiled first (``compile_seconds``); results blocked on."""
     import jax

@@ -41,8 +41,7 @@ def main() -> None:
     params = loading.load_params(None)
     ransac = protocol.method_fn("ransac_icp", params)
     first_src, first_ref = (clouds[n] for n in pairs[0])
-    for init in ("auto", "local", "global"):  # warm-up: every compilation
-        alignment.align(first_src, first_ref, params=params, init=init)
+    bench_utils.warm_align(first_src, first_ref, params=params)  # warm-up: every compilation
     baselines.open3d_scan_pair(first_src, first_ref, a.voxel)
     for src_name, ref_name in pairs:
         src, ref = clouds[src_name], clouds[ref_name]

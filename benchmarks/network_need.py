@@ -55,9 +55,8 @@ def main() -> None:
             row += [time.perf_counter() - t0, float(se3.rotation_angle_deg(res.transform[:3, :3] @ gt[:3, :3].T))]
         row += ["network" in res.stages, "global" in res.stages]
         if i == 0:  # warm-up: every compilation, the network's local and global paths too
-            for init in ("local", "global"):
-                alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params, init=init,
-                                num_points=max(len(s), len(r)))
+            bench_utils.warm_align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params,
+                                   num_points=max(len(s), len(r)))
             continue
         rows.append(row)
     t = np.array([[x[0], x[1], x[2], x[3]] for x in rows])
