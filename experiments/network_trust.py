@@ -15,8 +15,9 @@ rotation error, fitness, ``p_wrong`` and number of distinct candidates:
 Prints one JSON line per kind and rule: of the weak answers (a classical hypothesis found, its refined answer's
 fitness below ``network_fitness`` or ambiguous; with none found ``auto`` runs the network anyway) how many each
 rule trusts and how many of those are more than 5° off. The rules: the doubt model alone (``p_wrong``
-below the bar, fitness at least ``NETWORK_DOUBT_FLOOR``, not ambiguous), and the same answer also unopposed (one
-distinct candidate: every classical hypothesis ended in it), the default.
+below the bar, fitness at least ``NETWORK_DOUBT_FLOOR``, not ambiguous); the same answer also unopposed (one
+distinct candidate: every classical hypothesis ended in it); and, the default, unopposed or decided by RANSAC
+(fewer than ``GlobalOptions.classical`` hypotheses were worth refining).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ def _record(a, gt, **meta) -> dict:
     from rpmnet_jax.ops import se3
     return {**meta, "error_deg": float(se3.rotation_angle_deg(a.transform[:3, :3] @ gt[:3, :3].T)),
             "fitness": float(a.fitness), "p_wrong": float(a.p_wrong), "ambiguous": bool(a.ambiguous),
-            "distinct": len(a.candidates), "init": a.init}
+            "distinct": len(a.candidates), "starts": sum(len(c.support) for c in a.candidates), "init": a.init}
 
 
 def crop_records(root: str):
@@ -82,8 +83,10 @@ def summary(records: list) -> list:
         weak = [r for r in found if r["fitness"] < opts.network_fitness or r["ambiguous"]]
         doubt_only = lambda r: (not r["ambiguous"] and r["fitness"] >= options.NETWORK_DOUBT_FLOOR
                                 and r["p_wrong"] < opts.network_doubt)
-        for rule, keep in (("doubt model", doubt_only), ("doubt model + unopposed", lambda r: doubt_only(r)
-                                                          and r["distinct"] == 1)):
+        unopposed = lambda r: doubt_only(r) and r["distinct"] == 1
+        decided = lambda r: doubt_only(r) and (r["distinct"] == 1 or r.get("starts", opts.classical) < opts.classical)
+        for rule, keep in (("doubt model", doubt_only), ("doubt model + unopposed", unopposed),
+                           ("doubt model + unopposed or decided by RANSAC", decided)):
             trusted = [r for r in weak if keep(r)]
             out.append({"kind": kind, "rule": rule, "pairs": len(of_kind), "no_hypothesis": len(of_kind) - len(found),
                         "weak": len(weak), "weak_wrong": sum(r["error_deg"] > 5.0 for r in weak),

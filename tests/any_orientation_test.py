@@ -121,21 +121,29 @@ def test_a_weak_classical_answer_in_doubt_runs_the_network():
     assert rotation_error_deg(a.transform[:3, :3], pair["transform_gt"][:, :3]) < 2.0
 
 
-def test_a_weak_answer_is_trusted_only_when_sure_unopposed_and_not_too_weak():
+def test_a_weak_answer_is_trusted_only_when_sure_unopposed_or_decided_and_not_too_weak():
     """``_trusted``: below ``NETWORK_DOUBT_FLOOR`` the network runs whatever the doubt (the doubt model misses a
-    lone wrong answer of low fitness); at or above it, when every classical hypothesis ended in the answer (one
-    distinct candidate) and ``p_wrong`` is below the bar."""
+    lone wrong answer of low fitness); at or above it, when ``p_wrong`` is below the bar and either every classical
+    hypothesis ended in the answer (one distinct candidate) or RANSAC decided (fewer hypotheses refined than
+    ``GlobalOptions.classical``) and the answer is not ambiguous."""
     import types
 
     from rpmnet_jax.pairwise import alignment, options
 
-    opts = rpmnet_jax.GlobalOptions()
-    answer = lambda **kw: types.SimpleNamespace(**{"candidates": ("best",), "fitness": 0.5, "p_wrong": 0.001, **kw})
+    opts = rpmnet_jax.GlobalOptions()  # classical=4
+    cand = lambda *inits: types.SimpleNamespace(support=inits)
+    answer = lambda **kw: types.SimpleNamespace(**{"candidates": (cand("classical"),), "fitness": 0.5,
+                                                   "p_wrong": 0.001, "ambiguous": False, **kw})
     assert alignment._trusted(answer(), opts)
     assert not alignment._trusted(answer(fitness=options.NETWORK_DOUBT_FLOOR - 0.01), opts)
-    assert not alignment._trusted(answer(candidates=("best", "a flip")), opts)
     assert not alignment._trusted(answer(p_wrong=opts.network_doubt), opts)
     assert not alignment._trusted(answer(), ALWAYS)
+    every = (cand("classical", "classical"), cand("classical"), cand("classical"))  # 4 refined, 2 distinct rivals
+    assert not alignment._trusted(answer(candidates=every), opts)  # opposed, RANSAC undecided
+    decided = (cand("classical", "classical"), cand("classical"))  # 3 of 4 hypotheses worth refining
+    assert alignment._trusted(answer(candidates=decided), opts)
+    assert not alignment._trusted(answer(candidates=decided, ambiguous=True), opts)
+    assert not alignment._trusted(answer(candidates=decided), rpmnet_jax.GlobalOptions(classical=3))
 
 
 @pytest.mark.slow

@@ -46,11 +46,12 @@ class RefineOptions:
 
 
 NETWORK_DOUBT = 0.02  # a weak classical answer stands without the network when its p_wrong is below this and it is
-# unopposed (every classical hypothesis ended in it); on the public sets' partial test pairs the network then runs on
-# 77 of 610 pairs instead of 172, every accuracy row the same. Without "unopposed" the doubt model, fitted on crops of
-# whole shapes, trusts wrong answers of range scans: bun270 -> bun180 45.7 deg off (fitness 0.57, p_wrong 0.005, 4
-# distinct classical answers), 27 of its 48 trusted answers wrong on simulated scan pairs of training meshes (with
-# "unopposed": 2 trusted, both wrong with the network too; python -m experiments.network_trust,
+# unopposed (every classical hypothesis ended in it) or decided by RANSAC (fewer than `classical` hypotheses worth
+# refining; not ambiguous): on the public sets' partial test pairs the network then runs on 65 of 610 pairs (77 with
+# "unopposed" alone, 172 without either), every accuracy row the same. The doubt model alone, fitted on crops of whole
+# shapes, trusts wrong answers of range scans: bun270 -> bun180 45.7 deg off (fitness 0.57, p_wrong 0.005, 4 distinct
+# classical answers), 28 of its 51 trusted answers wrong on simulated scan pairs of training meshes (with the two
+# conditions: 2 trusted, both wrong with the network too; python -m experiments.network_trust,
 # docs/results.md#when-the-network-runs)
 NETWORK_DOUBT_FLOOR = 0.45  # below this fitness a weak answer runs the network whatever its doubt: the doubt model
 # misses a lone wrong answer of low fitness (a planted 150-164 deg hypothesis at 0.14-0.28: p_wrong 0.01-0.04); the
@@ -67,7 +68,8 @@ class GlobalOptions:
     flip scores close to it), or when its fitness is below ``network_fitness`` (always at 1) and either below
     ``NETWORK_DOUBT_FLOOR`` (0.45) or the answer it would give is at least ``network_doubt`` likely wrong
     (``p_wrong`` of :mod:`rpmnet_jax.pairwise.doubt`, default 0.02) or another classical hypothesis ended
-    elsewhere (0: the network runs on every weak answer; see ``NETWORK_DOUBT``).
+    elsewhere while RANSAC left ``classical`` hypotheses worth refining (0: the network runs on every weak answer;
+    see ``NETWORK_DOUBT``).
     The network's global search (``init="global"``, or ``"auto"`` when no candidate reaches a fitness of
     ``auto_fitness`` and the best is not confirmed by a classical and the network's own start together; at 1:
     always): ``hypotheses``, ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened
