@@ -84,13 +84,14 @@ def test_a_refinement_checked_in_pieces_ends_where_one_run_ends():
     inputs, _ = _dense_pair()
     start = np.eye(4)
     start[:3, :3] = rotation_about([1.0, 0.0, 0.0], 8.0)
-    whole, whole_score = candidates._icp_unless_hopeless(inputs.dense, start, inputs.max_distance_unit,
-                                                         RefineOptions(), None)
-    pieces, pieces_score = candidates._icp_unless_hopeless(inputs.dense, start, inputs.max_distance_unit,
-                                                           RefineOptions(), 0.0)
-    np.testing.assert_allclose(pieces.transform, whole.transform, atol=1e-12)
-    assert (pieces.converged, pieces.num_iterations, pieces_score) == (whole.converged, whole.num_iterations,
-                                                                       whole_score)
+    for opts in (RefineOptions(), RefineOptions(max_iterations=1)):  # one iteration a stage: no second half
+        whole, whole_score = candidates._icp_unless_hopeless(inputs.dense, start, inputs.max_distance_unit, opts,
+                                                             None)
+        pieces, pieces_score = candidates._icp_unless_hopeless(inputs.dense, start, inputs.max_distance_unit, opts,
+                                                               0.0)
+        np.testing.assert_allclose(pieces.transform, whole.transform, atol=1e-12)
+        assert (pieces.converged, pieces.num_iterations, pieces_score) == (whole.converged, whole.num_iterations,
+                                                                           whole_score)
 
 
 def test_a_hopeless_candidate_after_a_strong_one_stops_early_and_the_strong_one_wins():

@@ -89,12 +89,11 @@ def _icp_unless_hopeless(dense, start, max_dist_unit, refine_options, bar) -> tu
     first = _icp(dense, start, max_dist_unit, scales=scales[:1], max_iterations=half, **kwargs)
     transform, total = first.transform, first.num_iterations
     ended = first.converged or first.num_iterations < half  # the first stage ended within its first half
-    pieces = [(scales[:1], iterations - half, ended), (scales[1:coarse], iterations, False),
-              (scales[coarse:], iterations, False)]
-    converged = first.converged if ended else True
+    rest = 0 if ended else iterations - half  # what is left of the first stage
+    converged = first.converged if rest == 0 else True
     score = selection_score(dense, transform, max_dist_unit)
-    for piece, its, skip in pieces:
-        if skip or not piece or its < 1:
+    for piece, its in ((scales[:1], rest), (scales[1:coarse], iterations), (scales[coarse:], iterations)):
+        if not piece or its < 1:
             continue
         if score[0] < HOPELESS_SHARE * bar:
             return icp.Refinement(transform, False, total), score
