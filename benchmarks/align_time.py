@@ -23,13 +23,9 @@ OPEN3D = {"ransac_icp": "ransac", "fgr_icp": "fgr"}
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data-root", required=True)
-    p.add_argument("--dataset", default="noisy", choices=("clean", "noisy", "partial"))
+    bench_utils.test_file_arguments(p, dataset="noisy", pairs=20, rot_mag=45.0)
     p.add_argument("--points", type=int, default=1024)
-    p.add_argument("--pairs", type=int, default=20)
-    p.add_argument("--rot-mag", type=float, default=45.0)
     p.add_argument("--methods", default="rpmnet_auto,ransac_icp,fgr_icp")
-    p.add_argument("--threads", type=int, default=bench_utils.available_cpus(), help="CPUs to run on (default: all)")
     a = p.parse_args()
     bench_utils.pin(a.threads)
     import numpy as np

@@ -66,6 +66,16 @@ def run_worker(cmd: list, env: dict, record: dict, jsonl: str | None = None) -> 
     return record
 
 
+def test_file_arguments(parser, *, dataset: str, pairs: int, rot_mag: float) -> None:
+    """The arguments of a script that runs the first ``--pairs`` of a test file (``--split val``): ``--data-root``,
+    ``--dataset``, ``--pairs``, ``--rot-mag``, and ``--threads`` (see :func:`pin`)."""
+    parser.add_argument("--data-root", required=True)
+    parser.add_argument("--dataset", default=dataset, choices=("clean", "noisy", "partial"))
+    parser.add_argument("--pairs", type=int, default=pairs)
+    parser.add_argument("--rot-mag", type=float, default=rot_mag)
+    parser.add_argument("--threads", type=int, default=available_cpus(), help="CPUs to run on (default: all)")
+
+
 def session(script: str, argv, threads: int, malloc: str) -> dict:
     """What a results table states about its run: date, CPU, threads, malloc setting and the command line."""
     args = list(sys.argv[1:] if argv is None else argv)

@@ -26,11 +26,7 @@ WRONG_DEG = 5.0
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data-root", required=True)
-    p.add_argument("--dataset", default="partial", choices=("clean", "noisy", "partial"))
-    p.add_argument("--pairs", type=int, default=160)
-    p.add_argument("--rot-mag", type=float, default=180.0)
-    p.add_argument("--threads", type=int, default=bench_utils.available_cpus(), help="CPUs to run on (default: all)")
+    bench_utils.test_file_arguments(p, dataset="partial", pairs=160, rot_mag=180.0)
     a = p.parse_args()
     bench_utils.pin(a.threads)
     import numpy as np
