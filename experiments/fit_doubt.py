@@ -2,14 +2,20 @@
 from pairs of TRAINING files only.
 
     python -m experiments.fit_doubt collect --minutes 55 [--cache /tmp/rpmnet_doubt/train.jsonl]
+    python -m experiments.fit_doubt collect-scans --minutes 30 [--cache ...] [--meshes 12]
     python -m experiments.fit_doubt fit [--cache ...] [--output rpmnet_jax/weights/doubt.json]
 
 ``collect`` runs the default ``align`` on pairs made from the train files of ``--data-roots`` (all categories),
 round-robin over :data:`CONFIGS` (partial and noisy, any orientation and ±45°, the paper's crop at 1,024 points and
 a harder one: 512 points, 50% kept per cloud, where the default is wrong far more often) ten pairs at a time, until
 ``--minutes`` are spent; each answer goes to the JSON-lines ``--cache`` with its true error (pairs already there are
-skipped, so it resumes). ``fit`` (needs scikit-learn: ``pip install -e ".[fit]"``) fits a logistic regression on
-the standardised features, maps its out-of-fold scores to probabilities by Platt scaling, picks the
+skipped, so it resumes). ``collect-scans`` adds pairs of simulated range scans
+(:func:`experiments.network_trust.scan_pairs`: full density and 1,024 points) of the Poisson meshes of ``--meshes``
+seeded train-file rows of ``real_meshes_train`` (never the rows ``network_trust`` checks the trust rule on, nor the
+bunny), each pair answered twice: by the default ``align`` and by ``init="classical"`` (the answer ``auto`` keeps
+when it trusts it; on scans it is mostly wrong, which the crops alone never show the model). ``fit`` (needs
+scikit-learn: ``pip install -e ".[fit]"``) fits a logistic regression on the standardised features, maps its
+out-of-fold scores to probabilities by Platt scaling (a shape's, or a scanned mesh's, pairs in one fold), picks the
 threshold (the lowest on a 0.05 grid whose out-of-fold flags take at most 2% of the right answers of the paper's
 settings) and writes plain numbers as JSON (no pickle), plus a small parity fixture for the tests.
 """
@@ -31,6 +37,8 @@ CONFIGS = (("std", "partial", 180.0, 1024, 0.7, 1), ("hard", "partial", 180.0, 5
            ("std", "partial", 45.0, 1024, 0.7, 3), ("hard", "partial", 45.0, 512, 0.5, 4),
            ("std", "noisy", 180.0, 1024, 0.7, 5), ("std", "noisy", 45.0, 1024, 0.7, 6))
 CHUNK = 10
+SCAN_SEED = 7  # picks the scanned train-file rows
+SCAN_INITS = ("auto", "classical")
 FIXTURE = os.path.join("tests", "data", "doubt_examples.json")
 
 
@@ -59,12 +67,50 @@ def collect(a) -> None:
                           "minutes_left": round((stop - time.time()) / 60, 1)}), flush=True)
 
 
+def scan_rows(count: int) -> list:
+    """``count`` seeded rows of the train file of ``fit_edge_doubt.DATA_ROOT``, none of ``fit_edge_doubt.TRAIN_ROWS``
+    (the meshes ``experiments.network_trust`` checks the trust rule on)."""
+    from experiments import fit_edge_doubt
+    rows = [r for r in range(len(fit_edge_doubt.shape_ids(fit_edge_doubt.DATA_ROOT)))
+            if r not in fit_edge_doubt.TRAIN_ROWS]
+    return sorted(np.random.RandomState(SCAN_SEED).choice(rows, count, replace=False).tolist())
+
+
+def collect_scans(a) -> None:
+    from experiments import network_trust
+    from rpmnet_jax.evaluation import doubt_records
+    from rpmnet_jax.pairwise import alignment
+    from rpmnet_jax.weights import loading
+    params = loading.load_params(None)
+    stop = time.time() + 60 * a.minutes
+    done = {doubt_records.key(r) for r in doubt_records.read(a.cache)}
+    for row in scan_rows(a.meshes):
+        with open(a.cache, "a") as f:
+            for _, i, j, kind, src, ref, gt in network_trust.scan_pairs([row], 12):
+                for init in SCAN_INITS:
+                    meta = {"set": "scans", "split": "train", "protocol": init, "rot_mag": None, "seed": row,
+                            "setting": kind, "idx": 100 * i + j, "group": f"scans/{row}"}
+                    if doubt_records.key(meta) in done:
+                        continue
+                    if time.time() > stop:
+                        return
+                    t0 = time.perf_counter()
+                    ans = alignment.align(src, ref, params=params, init=init)
+                    f.write(json.dumps(doubt_records.record(ans, gt[:3], **meta,
+                                                            seconds=time.perf_counter() - t0)) + "\n")
+                    f.flush()
+        rows = doubt_records.read(a.cache)
+        print(json.dumps({"mesh": row, "pairs": len(rows), "wrong": int(doubt_records.labels(rows).sum()),
+                          "minutes_left": round((stop - time.time()) / 60, 1)}), flush=True)
+
+
 def fit(a) -> None:
     from rpmnet_jax.evaluation import calibration, doubt_records
     from rpmnet_jax.pairwise import doubt
     rows = doubt_records.read(a.cache)
     x, y = doubt_records.features(rows), doubt_records.labels(rows)
-    groups = np.array([zlib.crc32(f"{r['set']}/{r['idx']}".encode()) % 10 for r in rows])  # a shape in one fold
+    groups = np.array([zlib.crc32(r.get("group", f"{r['set']}/{r['idx']}").encode()) % 10
+                       for r in rows])  # a shape (a scanned mesh) in one fold
     fitted = calibration.fit_logistic_platt(x, y, groups, 5, a.c, 2000)
     scaler, scale, lr, platt = fitted.scaler, fitted.scale, fitted.lr, fitted.platt
     p_oof = calibration.held_out_platt(fitted.scores, y, groups % 5)
@@ -77,7 +123,7 @@ def fit(a) -> None:
     with open(a.output, "w") as f:
         json.dump(spec, f)
     flagged = p_oof >= threshold
-    for name, m in (("all", np.ones(len(y), bool)), ("std", setting == "std"), ("hard", setting == "hard")):
+    for name, m in (("all", np.ones(len(y), bool)), *((s, setting == s) for s in sorted(set(setting)))):
         print(json.dumps({"out_of_fold": name, "pairs": int(m.sum()), "wrong": int(y[m].sum()),
                           "auroc": round(calibration.auroc(p_oof[m], y[m]), 4),
                           "ece": round(calibration.ece(p_oof[m], y[m]), 4),
@@ -104,17 +150,18 @@ MAX_FLAGGED_RIGHT = 0.02  # the default bar flags at most this share of the righ
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("command", choices=("collect", "fit"))
+    p.add_argument("command", choices=("collect", "collect-scans", "fit"))
     p.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "rpmnet_doubt", "train.jsonl"))
     p.add_argument("--data-roots", default=DATA_ROOTS)
     p.add_argument("--minutes", type=float, default=55.0)
+    p.add_argument("--meshes", type=int, default=12, help="collect-scans: train-file meshes to scan")
     p.add_argument("--output", default=os.path.join("rpmnet_jax", "weights", "doubt.json"))
     p.add_argument("--c", type=float, default=0.1, help="inverse L2 strength of the logistic regression")
     p.add_argument("--threshold", type=float, default=None,
                    help="the likely_wrong bar (default: the lowest flagging <= 2%% of right training answers)")
     a = p.parse_args(argv)
     os.makedirs(os.path.dirname(os.path.abspath(a.cache)), exist_ok=True)
-    collect(a) if a.command == "collect" else fit(a)
+    {"collect": collect, "collect-scans": collect_scans, "fit": fit}[a.command](a)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,8 @@
 ``alignment._trusted`` and ``options.NETWORK_DOUBT``.
 
     python -m experiments.network_trust [--data-roots ../shared/data/modelnet40_real_subset,...]
-        [--meshes 16] [--scans 12] [--output network_trust.jsonl]
+        [--meshes 16] [--scans 12] [--output network_trust.jsonl] [--bars 0.05,0.1,0.15,0.2]
+    python -m experiments.network_trust --input network_trust.jsonl --bars 0.05,0.1,0.15,0.2
 
 Runs ``align(init="classical")`` (the answer ``auto`` would keep) on two kinds of pairs and records, per pair, its
 rotation error, fitness, ``p_wrong`` and number of distinct candidates:
@@ -14,10 +15,11 @@ rotation error, fitness, ``p_wrong`` and number of distinct candidates:
 
 Prints one JSON line per kind and rule: of the weak answers (a classical hypothesis found, its refined answer's
 fitness below ``network_fitness`` or ambiguous; with none found ``auto`` runs the network anyway) how many each
-rule trusts and how many of those are more than 5° off. The rules: the doubt model alone (``p_wrong``
-below the bar, fitness at least ``NETWORK_DOUBT_FLOOR``, not ambiguous); the same answer also unopposed (one
-distinct candidate: every classical hypothesis ended in it); and, the default, unopposed or decided by RANSAC
-(fewer than ``GlobalOptions.classical`` hypotheses were worth refining).
+rule trusts and how many of those are more than 5° off, per ``p_wrong`` bar (``--bars``; default the shipped
+``GlobalOptions().network_doubt``). The rules: the doubt model alone (``p_wrong`` below the bar, fitness at least
+``NETWORK_DOUBT_FLOOR``, not ambiguous: the default); the same answer also unopposed (one distinct candidate: every
+classical hypothesis ended in it); and unopposed or decided by RANSAC (fewer than ``GlobalOptions.classical``
+hypotheses were worth refining: the default while the doubt model was fitted on crops alone).
 """
 
 from __future__ import annotations
@@ -52,44 +54,56 @@ def crop_records(root: str):
             yield _record(a, np.asarray(d["transform_gt"], np.float64), kind="crops", set=root, rot_mag=rot, idx=i)
 
 
-def scan_records(num_meshes: int, num_scans: int):
+def scan_pairs(rows, num_scans: int):
+    """``(row, i, j, kind, src (N, 3), ref (M, 3), gt (4, 4))`` for simulated range scans (``num_scans`` per mesh,
+    240 × 240, 0.5 mm noise) of the Poisson meshes of train-file ``rows`` of ``fit_edge_doubt.DATA_ROOT``: every pair
+    whose view directions lie :data:`VIEW_ANGLES` apart, at full density (``kind`` "scans") and sampled to
+    :data:`SAMPLE` points ("scans_1024"); ``gt`` maps scan ``i`` onto scan ``j``."""
     from experiments import fit_edge_doubt
     from rpmnet_jax.data import range_scans
-    from rpmnet_jax.pairwise import alignment
-    rows = list(fit_edge_doubt.TRAIN_ROWS)[:num_meshes]
-    meshes = fit_edge_doubt.meshes(fit_edge_doubt.DATA_ROOT, rows)
     for row in rows:
-        scans = range_scans.simulate(*meshes[row], num_scans, image_size=240, noise=0.0005, seed=row)
+        mesh = fit_edge_doubt.meshes(fit_edge_doubt.DATA_ROOT, [row])[row]
+        scans = range_scans.simulate(*mesh, num_scans, image_size=240, noise=0.0005, seed=row)
         for i, j in itertools.combinations(range(len(scans)), 2):
             angle = np.degrees(np.arccos(np.clip(scans[i].pose[:3, 2] @ scans[j].pose[:3, 2], -1.0, 1.0)))
             if not VIEW_ANGLES[0] <= angle <= VIEW_ANGLES[1] or min(len(scans[i].points), len(scans[j].points)) < 500:
                 continue
             gt = np.linalg.inv(scans[j].pose) @ scans[i].pose
             src, ref = scans[i].points, scans[j].points
-            yield _record(alignment.align(src, ref, init="classical"), gt, kind="scans", mesh=row, i=i, j=j)
+            yield row, i, j, "scans", src, ref, gt
             rng = np.random.default_rng(100 * i + j)
             src, ref = (p[rng.choice(len(p), min(len(p), SAMPLE), replace=False)] for p in (src, ref))
-            yield _record(alignment.align(src, ref, init="classical"), gt, kind="scans_1024", mesh=row, i=i, j=j)
+            yield row, i, j, "scans_1024", src, ref, gt
 
 
-def summary(records: list) -> list:
-    """Per kind and rule: weak answers, trusted ones and the wrong among them."""
+def scan_records(num_meshes: int, num_scans: int):
+    from experiments import fit_edge_doubt
+    from rpmnet_jax.pairwise import alignment
+    rows = list(fit_edge_doubt.TRAIN_ROWS)[:num_meshes]
+    for row, i, j, kind, src, ref, gt in scan_pairs(rows, num_scans):
+        yield _record(alignment.align(src, ref, init="classical"), gt, kind=kind, mesh=row, i=i, j=j)
+
+
+def summary(records: list, bars=None) -> list:
+    """Per kind, ``p_wrong`` bar (default ``GlobalOptions().network_doubt``) and rule: weak answers, trusted ones and
+    the wrong among them."""
     from rpmnet_jax.pairwise import options
     opts = options.GlobalOptions()
     out = []
-    for kind in sorted({r["kind"] for r in records}):
+    for kind, bar in itertools.product(sorted({r["kind"] for r in records}), bars or (opts.network_doubt,)):
         of_kind = [r for r in records if r["kind"] == kind]
         found = [r for r in of_kind if r["init"] != "identity"]  # none found: the network runs anyway
         weak = [r for r in found if r["fitness"] < opts.network_fitness or r["ambiguous"]]
         doubt_only = lambda r: (not r["ambiguous"] and r["fitness"] >= options.NETWORK_DOUBT_FLOOR
-                                and r["p_wrong"] < opts.network_doubt)
+                                and r["p_wrong"] < bar)
         unopposed = lambda r: doubt_only(r) and r["distinct"] == 1
         decided = lambda r: doubt_only(r) and (r["distinct"] == 1 or r.get("starts", opts.classical) < opts.classical)
         for rule, keep in (("doubt model", doubt_only), ("doubt model + unopposed", unopposed),
                            ("doubt model + unopposed or decided by RANSAC", decided)):
             trusted = [r for r in weak if keep(r)]
-            out.append({"kind": kind, "rule": rule, "pairs": len(of_kind), "no_hypothesis": len(of_kind) - len(found),
-                        "weak": len(weak), "weak_wrong": sum(r["error_deg"] > 5.0 for r in weak),
+            out.append({"kind": kind, "rule": rule, "bar": bar, "pairs": len(of_kind),
+                        "no_hypothesis": len(of_kind) - len(found), "weak": len(weak),
+                        "weak_wrong": sum(r["error_deg"] > 5.0 for r in weak),
                         "trusted": len(trusted), "trusted_wrong": sum(r["error_deg"] > 5.0 for r in trusted)})
     return out
 
@@ -100,14 +114,20 @@ def main(argv=None) -> None:
     p.add_argument("--meshes", type=int, default=16, help="training meshes to scan (of fit_edge_doubt.TRAIN_ROWS)")
     p.add_argument("--scans", type=int, default=12, help="simulated scans per mesh")
     p.add_argument("--output", default=None, help="JSON lines: one record per pair")
+    p.add_argument("--input", default=None, help="summarise these records (an earlier --output) instead of running")
+    p.add_argument("--bars", default=None, help="p_wrong bars, comma-separated (default GlobalOptions().network_doubt)")
     a = p.parse_args(argv)
-    sources = [crop_records(root) for root in a.data_roots.split(",") if root]
-    sources.append(scan_records(a.meshes, a.scans) if a.meshes > 0 else iter(()))
-    records = list(itertools.chain(*sources))
-    if a.output:
+    if a.input:
+        with open(a.input) as f:
+            records = [json.loads(line) for line in f if line.strip()]
+    else:
+        sources = [crop_records(root) for root in a.data_roots.split(",") if root]
+        sources.append(scan_records(a.meshes, a.scans) if a.meshes > 0 else iter(()))
+        records = list(itertools.chain(*sources))
+    if a.output and not a.input:
         with open(a.output, "w") as f:
             f.writelines(json.dumps(r) + "\n" for r in records)
-    for line in summary(records):
+    for line in summary(records, [float(b) for b in a.bars.split(",")] if a.bars else None):
         print(json.dumps(line))
 
 

@@ -10,9 +10,8 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    ``init="auto"`` (default) refines up to ``GlobalOptions.classical`` FPFH + RANSAC hypotheses
    (:mod:`rpmnet_jax.geometry.feature_ransac`: rotation invariant, cheap) first, adds the local start when the
    best refined answer is ambiguous, or when its fitness is below ``GlobalOptions.network_fitness`` and the
-   answer it would give is not trusted (another classical hypothesis ended elsewhere while RANSAC left
-   ``GlobalOptions.classical`` hypotheses worth refining, its fitness below 0.45, or
-   at least ``GlobalOptions.network_doubt`` likely wrong by step 6), and the global
+   answer it would give is not trusted (its fitness below 0.45, or at least ``GlobalOptions.network_doubt``
+   likely wrong by step 6), and the global
    search when still no answer reaches ``GlobalOptions.auto_fitness`` and the best one is not confirmed (reached
    from a classical and from the network's start, nothing close to it: two independent starts agree); ``init="classical"`` refines the classical
    hypotheses alone (no network; the identity when they find none);
@@ -80,7 +79,7 @@ class Alignment(NamedTuple):
     ambiguous: bool  # another distinct answer scores within AMBIGUITY_SHARE of the best (a symmetric shape)
     information: np.ndarray  # (6, 6): point-to-plane information of ``transform`` (see :meth:`covariance`)
     p_wrong: float = float("nan")  # calibrated probability that the rotation is > 5 deg off (:mod:`doubt`)
-    likely_wrong: bool = False  # p_wrong reaches the shipped model's threshold (0.1, :func:`doubt.load`)
+    likely_wrong: bool = False  # p_wrong reaches the shipped model's threshold (0.35, :func:`doubt.load`)
 
     @property
     def stages(self) -> tuple:
@@ -187,14 +186,9 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
 
 
 def _trusted(answer: "Alignment", opts: options_lib.GlobalOptions) -> bool:
-    """Whether a weak classical ``answer`` (fitness below ``opts.network_fitness``) stands without the network:
-    unopposed (every classical hypothesis ended in it: one distinct candidate) or decided by RANSAC (not ambiguous,
-    and fewer than ``opts.classical`` hypotheses were worth refining: the others had under
-    ``starts.CLASSICAL_KEEP`` of the best one's inliers), its fitness at least ``options.NETWORK_DOUBT_FLOOR`` and
-    its ``p_wrong`` below ``opts.network_doubt``."""
-    refined_starts = sum(len(c.support) for c in answer.candidates)  # each refined start, where it ended
-    decided = refined_starts < opts.classical and not answer.ambiguous
-    return ((len(answer.candidates) == 1 or decided) and answer.fitness >= options_lib.NETWORK_DOUBT_FLOOR
+    """Whether a weak classical ``answer`` (fitness below ``opts.network_fitness``) stands without the network: not
+    ambiguous, its fitness at least ``options.NETWORK_DOUBT_FLOOR`` and its ``p_wrong`` below ``opts.network_doubt``."""
+    return (not answer.ambiguous and answer.fitness >= options_lib.NETWORK_DOUBT_FLOOR
             and answer.p_wrong < opts.network_doubt)
 
 
