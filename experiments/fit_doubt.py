@@ -85,6 +85,8 @@ def collect_scans(a) -> None:
     stop = time.time() + 60 * a.minutes
     done = {doubt_records.key(r) for r in doubt_records.read(a.cache)}
     for row in scan_rows(a.meshes):
+        if time.time() > stop:
+            return
         with open(a.cache, "a") as f:
             for _, i, j, kind, src, ref, gt in network_trust.scan_pairs([row], 12):
                 for init in SCAN_INITS:

@@ -13,7 +13,7 @@ rotation error, fitness, ``p_wrong`` and number of distinct candidates:
   noise) of Poisson meshes of TRAINING shapes (``experiments.fit_edge_doubt.TRAIN_ROWS``; never the bunny), every
   pair whose view directions lie 40–120° apart, at full density and sampled to 1,024 points.
 
-Prints one JSON line per kind and rule: of the weak answers (a classical hypothesis found, its refined answer's
+Prints one JSON line per kind, bar and rule: of the weak answers (a classical hypothesis found, its refined answer's
 fitness below ``network_fitness`` or ambiguous; with none found ``auto`` runs the network anyway) how many each
 rule trusts and how many of those are more than 5° off, per ``p_wrong`` bar (``--bars``; default the shipped
 ``GlobalOptions().network_doubt``). The rules: the doubt model alone (``p_wrong`` below the bar, fitness at least
@@ -117,6 +117,8 @@ def main(argv=None) -> None:
     p.add_argument("--input", default=None, help="summarise these records (an earlier --output) instead of running")
     p.add_argument("--bars", default=None, help="p_wrong bars, comma-separated (default GlobalOptions().network_doubt)")
     a = p.parse_args(argv)
+    if a.input and a.output:
+        p.error("--input summarises saved records; --output writes new ones: give one of them")
     if a.input:
         with open(a.input) as f:
             records = [json.loads(line) for line in f if line.strip()]
@@ -124,7 +126,7 @@ def main(argv=None) -> None:
         sources = [crop_records(root) for root in a.data_roots.split(",") if root]
         sources.append(scan_records(a.meshes, a.scans) if a.meshes > 0 else iter(()))
         records = list(itertools.chain(*sources))
-    if a.output and not a.input:
+    if a.output:
         with open(a.output, "w") as f:
             f.writelines(json.dumps(r) + "\n" for r in records)
     for line in summary(records, [float(b) for b in a.bars.split(",")] if a.bars else None):

@@ -122,8 +122,8 @@ def test_a_weak_classical_answer_in_doubt_runs_the_network():
 
 
 def test_a_weak_answer_is_trusted_only_when_sure_not_ambiguous_and_not_too_weak():
-    """``_trusted``: below ``NETWORK_DOUBT_FLOOR`` the network runs whatever the doubt (the doubt model misses a
-    lone wrong answer of low fitness); at or above it, when ``p_wrong`` is below the bar and the answer is not
+    """``_trusted``: below ``NETWORK_DOUBT_FLOOR`` the network runs whatever the doubt (the doubt model is least
+    sure of a lone answer of low fitness); at or above it, when ``p_wrong`` is below the bar and the answer is not
     ambiguous, whether or not other classical hypotheses ended elsewhere."""
     import types
 

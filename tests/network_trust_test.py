@@ -11,7 +11,7 @@ def _rec(kind="scans", fitness=0.5, ambiguous=False, p_wrong=0.001, distinct=1, 
 
 def test_summary_counts_weak_trusted_and_wrong_answers_per_rule():
     records = [
-        _rec(),                                  # weak, unopposed, sure, right: both rules trust it
+        _rec(),                                  # weak, unopposed, sure, right: every rule trusts it
         _rec(distinct=4, error_deg=45.7),        # weak, sure but opposed and wrong: only the doubt model trusts it
         _rec(distinct=2, starts=3),              # opposed, but RANSAC decided (3 of 4 refined): not "unopposed"
         _rec(p_wrong=0.12),                      # below the default bar (0.15), above 0.1: trusted at the default
@@ -24,12 +24,12 @@ def test_summary_counts_weak_trusted_and_wrong_answers_per_rule():
     ]
     rows = {(r["kind"], r["rule"]): r for r in network_trust.summary(records)}
     alone, unopposed = rows[("scans", "doubt model")], rows[("scans", "doubt model + unopposed")]
-    default = rows[("scans", "doubt model + unopposed or decided by RANSAC")]
-    assert alone["pairs"] == unopposed["pairs"] == default["pairs"] == 9 and alone["no_hypothesis"] == 1
-    assert alone["weak"] == default["weak"] == 7 and alone["weak_wrong"] == 3
+    decided = rows[("scans", "doubt model + unopposed or decided by RANSAC")]
+    assert alone["pairs"] == unopposed["pairs"] == decided["pairs"] == 9 and alone["no_hypothesis"] == 1
+    assert alone["weak"] == decided["weak"] == 7 and alone["weak_wrong"] == 3
     assert (alone["trusted"], alone["trusted_wrong"]) == (4, 1)
     assert (unopposed["trusted"], unopposed["trusted_wrong"]) == (2, 0)
-    assert (default["trusted"], default["trusted_wrong"]) == (3, 0)
+    assert (decided["trusted"], decided["trusted_wrong"]) == (3, 0)
     assert alone["bar"] == 0.15
     crops = rows[("crops", "doubt model + unopposed or decided by RANSAC")]
     assert (crops["pairs"], crops["weak"], crops["trusted"], crops["trusted_wrong"]) == (1, 1, 1, 1)
