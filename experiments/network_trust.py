@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 
 import numpy as np
 
@@ -61,9 +62,9 @@ def scan_pairs(rows, num_scans: int):
     :data:`SAMPLE` points ("scans_1024"); ``gt`` maps scan ``i`` onto scan ``j``."""
     from experiments import fit_edge_doubt
     from rpmnet_jax.data import range_scans
+    meshes = fit_edge_doubt.meshes(fit_edge_doubt.DATA_ROOT, rows)  # one read of the train file
     for row in rows:
-        mesh = fit_edge_doubt.meshes(fit_edge_doubt.DATA_ROOT, [row])[row]
-        scans = range_scans.simulate(*mesh, num_scans, image_size=240, noise=0.0005, seed=row)
+        scans = range_scans.simulate(*meshes[row], num_scans, image_size=240, noise=0.0005, seed=row)
         for i, j in itertools.combinations(range(len(scans)), 2):
             angle = np.degrees(np.arccos(np.clip(scans[i].pose[:3, 2] @ scans[j].pose[:3, 2], -1.0, 1.0)))
             if not VIEW_ANGLES[0] <= angle <= VIEW_ANGLES[1] or min(len(scans[i].points), len(scans[j].points)) < 500:
@@ -120,8 +121,10 @@ def main(argv=None) -> None:
     if a.input and a.output:
         p.error("--input summarises saved records; --output writes new ones: give one of them")
     if a.input:
-        with open(a.input) as f:
-            records = [json.loads(line) for line in f if line.strip()]
+        from rpmnet_jax.evaluation import doubt_records
+        if not os.path.isfile(a.input):
+            p.error(f"--input {a.input}: no such file")
+        records = doubt_records.read(a.input)
     else:
         sources = [crop_records(root) for root in a.data_roots.split(",") if root]
         sources.append(scan_records(a.meshes, a.scans) if a.meshes > 0 else iter(()))

@@ -52,9 +52,9 @@ NETWORK_DOUBT = 0.15  # a weak classical answer (not ambiguous, fitness at least
 # 92 / 122 / 130 / 134 of 173 weak answers, none wrong; simulated scans of 16 other training meshes 6 (2 wrong) / 8 (2)
 # / 12 (2) / 14 (4) of 384 weak, at 1,024 points 0 / 3 (1) / 9 (4) / 16 (7) of 468, and the network rescues none of
 # the wrong ones below 0.15 (one at p_wrong 0.186); none of the 52 weak answers of the 90 ordered bunny scan pairs
-# below 0.2 (5 below 0.3, 1 wrong). The bar was set between these (docs/results.md#when-the-network-runs). The model fitted on crops
-# alone trusted bun270 -> bun180 45.7 deg off at p_wrong 0.005 (now 0.43): its rule needed the answer unopposed or
-# decided by RANSAC as well
+# below 0.2 (5 below 0.3, 1 wrong). The bar was set between these (docs/results.md#when-the-network-runs). The
+# model fitted on crops alone trusted bun270 -> bun180 45.7 deg off at p_wrong 0.005 (now 0.43): its rule needed
+# the answer unopposed or decided by RANSAC as well
 NETWORK_DOUBT_FLOOR = 0.45  # below this fitness a weak answer runs the network whatever its doubt: the doubt model is
 # least sure of a lone answer of low fitness (planted 150-164 deg hypotheses end at fitness 0.12-0.24 with p_wrong
 # 0.12-0.64; the crops-only model gave 0.01-0.04); the weak answers the crops-only model trusted on the public sets'
