@@ -71,15 +71,17 @@ def test_scored_samples_equal_kabsch_and_direct_distances():
     assert (counts == -1).any() and (counts > 60).any()
 
 
-def test_samples_the_edge_checker_rejects_are_never_solved(monkeypatch):
+def test_samples_the_edge_checker_rejects_are_never_solved():
     """Correspondences that pair every source point with one tiny triangle: no sample passes the edge-length
-    checker, so no hypothesis, and the solve is never called."""
-    def solve(*args):
-        raise AssertionError("a sample the edge-length checker rejects was solved")
-
-    monkeypatch.setattr(feature_ransac, "_score_samples", solve)
+    checker, so no sample is solved (its transform stays zero: a solved one holds a rotation) and there is no
+    hypothesis; at an edge ratio of 0 the same samples are solved."""
     src, _, _, _, _, _ = _pair(30.0)
     ref = np.repeat(np.array([[0.0, 0, 0], [1e-3, 0, 0], [0, 1e-3, 0]]), 10, axis=0)
+    samples = np.array([[0, 10, 20], [1, 11, 21], [5, 15, 25]])
+    t, counts = feature_ransac._score_samples(src[:30], ref, samples, 0.075, 0.9)
+    assert np.all(counts == -1) and not t.any()
+    t, _ = feature_ransac._score_samples(src[:30], ref, samples, 0.075, 0.0)
+    np.testing.assert_allclose(np.linalg.det(t[:, :, :3]), 1.0, atol=1e-9)
     corr = np.stack([np.arange(30), np.arange(30)], axis=1)
     h = feature_ransac.ransac_hypotheses(src[:30], ref, corr, 0.075)
     assert len(h.transforms) == 0 and h.num_correspondences == 30

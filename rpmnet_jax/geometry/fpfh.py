@@ -17,7 +17,7 @@ import math
 import numba
 import numpy as np
 
-from rpmnet_jax.geometry import kdtree
+from rpmnet_jax.geometry import kdtree, threads
 
 BINS = 11
 
@@ -94,7 +94,7 @@ def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: kdtree.KdTr
     k = min(max_nn, len(points))
     gridded = tree is None and len(points) > 0 and 0 < radius < np.inf and bool(np.isfinite(points).all())
     if gridded and np.all(np.ptp(points, axis=0) / radius < GRID_CELLS_PER_AXIS):
-        d2, idx = _grid_search(points, float(radius), k)
+        d2, idx = _grid_search(points, float(radius), k, 8 * threads.start_pool())
         valid = np.isfinite(d2)
     else:
         tree = tree or kdtree.KdTree(points)
@@ -106,12 +106,12 @@ def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: kdtree.KdTr
     return np.where(valid, idx, own), np.where(valid, d2, 0.0), valid
 
 
-@numba.njit(cache=True)
-def _grid_search(points, radius, k):
+@numba.njit(cache=True, parallel=True)
+def _grid_search(points, radius, k, chunks):
     """``(squared distances (N, k), indices (N, k))``: each point itself in the first slot, then its ``k - 1``
     nearest other points within ``radius`` in no particular order (of equally far ones at the ``k``-th
     place, the first found), ``inf`` and ``N`` in the slots left over (the k-d tree's convention), found in
-    the 27 cells of side ``radius`` around its own."""
+    the 27 cells of side ``radius`` around its own; the rows in ``chunks`` pieces on every core."""
     n = len(points)
     lo = np.empty(3)
     for a in range(3):
@@ -126,30 +126,39 @@ def _grid_search(points, radius, k):
     sorted_keys = keys[order]
     out_d = np.full((n, k), np.inf)
     out_i = np.full((n, k), n, np.int64)
-    cand_d = np.empty(n)
-    cand_i = np.empty(n, np.int64)
     r2 = radius * radius
-    for i in range(n):
-        m = 0
-        for dx in range(-1, 2):
-            for dy in range(-1, 2):
-                for dz in range(-1, 2):
-                    key = ((cells[i, 0] + 1 + dx) * ny + cells[i, 1] + 1 + dy) * nz + cells[i, 2] + 1 + dz
-                    j = np.searchsorted(sorted_keys, key)
-                    while j < n and sorted_keys[j] == key:
-                        q = order[j]
-                        ex, ey, ez = points[q, 0] - points[i, 0], points[q, 1] - points[i, 1], points[q, 2] - points[i, 2]
-                        d = ex * ex + ey * ey + ez * ez
-                        if d <= r2 and q != i:
-                            cand_d[m], cand_i[m] = d, q
-                            m += 1
-                        j += 1
-        out_d[i, 0], out_i[i, 0] = 0.0, i
-        if m > k - 1:  # only the k - 1 nearest: moved to the front
-            kdtree.select(cand_d, cand_i, m, k - 1)
-        for t in range(min(m, k - 1)):
-            out_d[i, 1 + t], out_i[i, 1 + t] = cand_d[t], cand_i[t]
+    per = (n + chunks - 1) // chunks
+    for c in numba.prange(chunks):
+        cand_d = np.empty(n)
+        cand_i = np.empty(n, np.int64)
+        for i in range(c * per, min((c + 1) * per, n)):
+            _grid_row(points, cells, ny, nz, order, sorted_keys, r2, k, i, cand_d, cand_i, out_d, out_i)
     return out_d, out_i
+
+
+@numba.njit(cache=True)
+def _grid_row(points, cells, ny, nz, order, sorted_keys, r2, k, i, cand_d, cand_i, out_d, out_i):
+    """Row ``i`` of :func:`_grid_search` (``cand_d, cand_i (N,)``: its work space)."""
+    n = len(points)
+    m = 0
+    for dx in range(-1, 2):
+        for dy in range(-1, 2):
+            for dz in range(-1, 2):
+                key = ((cells[i, 0] + 1 + dx) * ny + cells[i, 1] + 1 + dy) * nz + cells[i, 2] + 1 + dz
+                j = np.searchsorted(sorted_keys, key)
+                while j < n and sorted_keys[j] == key:
+                    q = order[j]
+                    ex, ey, ez = points[q, 0] - points[i, 0], points[q, 1] - points[i, 1], points[q, 2] - points[i, 2]
+                    d = ex * ex + ey * ey + ez * ez
+                    if d <= r2 and q != i:
+                        cand_d[m], cand_i[m] = d, q
+                        m += 1
+                    j += 1
+    out_d[i, 0], out_i[i, 0] = 0.0, i
+    if m > k - 1:  # only the k - 1 nearest: moved to the front
+        kdtree.select(cand_d, cand_i, m, k - 1)
+    for t in range(min(m, k - 1)):
+        out_d[i, 1 + t], out_i[i, 1 + t] = cand_d[t], cand_i[t]
 
 
 @numba.njit(cache=True)
@@ -158,13 +167,13 @@ def _bin(scaled):
     return min(max(int(math.floor(scaled)), 0), BINS - 1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def spfh(points, normals, idx, valid):
     """Simplified PFH ``(N, 33)`` of every point from its neighbours ``idx, valid (N, K)`` (slot 0 = itself):
     each neighbour adds ``100 / (neighbours - 1)`` to one bin of α, of φ and of θ (Open3D's increment)."""
     n, k = idx.shape
     hist = np.zeros((n, 3 * BINS))
-    for i in range(n):
+    for i in numba.prange(n):
         count = 0
         for j in range(1, k):
             count += valid[i, j]
@@ -180,12 +189,12 @@ def spfh(points, normals, idx, valid):
     return hist
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _fpfh_from_spfh(hist, idx, d2, valid):
     """Each point's SPFH plus its neighbours' weighted by ``1 / d²``, every 11-bin block of the sum scaled to 100."""
     n, k = idx.shape
     out = np.zeros_like(hist)
-    for i in range(n):
+    for i in numba.prange(n):
         for j in range(1, k):
             if valid[i, j] and d2[i, j] > 0:
                 weight, q = 1.0 / d2[i, j], idx[i, j]

@@ -21,13 +21,15 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from rpmnet_jax.geometry import threads
+
 # Numba tries Intel TBB first for its parallel loops and says so when a system TBB is too old; it then runs them
 # on OpenMP (or its own pool) just as well: the notice is not for our users
 warnings.filterwarnings("ignore", message="The TBB threading layer requires TBB version",
                         category=numba.NumbaWarning)
 
 LEAF = 12  # points per leaf at most
-PARALLEL_QUERIES = 2_000  # a query of at least this many points runs on every core (the ICP's too)
+PARALLEL_QUERIES = 500  # a query of at least this many points runs on every core (the ICP's too)
 
 
 @numba.njit(cache=True)
@@ -210,11 +212,9 @@ def query_into(nodes, queries, k, bound2, dist, idx, chunks):
 def chunks_for(count: int) -> int:
     """How many pieces :func:`query_into` splits ``count`` queries into: 1 below ``PARALLEL_QUERIES``, else 8 per
     thread (uneven queries even out). Every call from Python into code that holds :func:`query_into` goes through
-    here, so this is also where Numba's thread pool is started: compiled code loaded from Numba's on-disk cache
-    into a fresh process calls the pool's functions through addresses bound only once it has started (before, an
-    ICP of fewer than ``PARALLEL_QUERIES`` points in a new process, such as a Dask worker, jumped to address 0)."""
-    threads = numba.get_num_threads()  # starts the pool when it has not started yet
-    return 8 * threads if count >= PARALLEL_QUERIES else 1
+    here, so this is also where Numba's thread pool is started (:func:`rpmnet_jax.geometry.threads.start_pool`)."""
+    pool = threads.start_pool()
+    return 8 * pool if count >= PARALLEL_QUERIES else 1
 
 
 class KdTree:

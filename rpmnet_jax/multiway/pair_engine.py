@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax.geometry import icp
+from rpmnet_jax.geometry import icp, threads
 from rpmnet_jax.multiway import edges as edges_lib, pair_cache
 
 CONNECT_TIMEOUT = "20s"  # waiting for a scheduler that does not answer
@@ -64,6 +64,7 @@ def network_chunk(scans, chunk, todo, params, cfg, settings: Settings, compile_c
     return out
 
 
+@threads.one_blas_thread()  # on a worker too: BLAS leaves the cores to the compiled loops
 def classical_pair(scans, i, j, settings: Settings) -> list:
     """``[((i, j), edges)]``: the answers of scan ``i`` onto scan ``j`` from FPFH + RANSAC
     (:func:`~rpmnet_jax.multiway.edges.classical_edges`)."""
@@ -73,6 +74,7 @@ def classical_pair(scans, i, j, settings: Settings) -> list:
                                                max_plane_residual=s.max_plane_residual))]
 
 
+@threads.one_blas_thread()  # on a worker too: BLAS leaves the cores to the compiled loops
 def refine_pair(scans, i, j, start, round_, settings: Settings) -> list:
     """``[((i, j), [edge])]``: ICP of scan ``i`` onto scan ``j`` from ``start (4, 4)`` (refinement round
     ``round_``)."""

@@ -51,7 +51,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
-from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, scoring
+from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, scoring, threads
 from rpmnet_jax.multiway import candidate_pairs, edge_doubt, edges as edges_lib, joint_refine, options as options_lib
 from rpmnet_jax.multiway import pair_engine, pose_graph
 from rpmnet_jax.ops import se3
@@ -254,7 +254,7 @@ def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = opti
     the same scans, options and cache reuses them."""
     if not isinstance(options, options_lib.ScanOptions):
         raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")
-    with pair_engine.PairEngine(scheduler, cache) as engine:
+    with threads.one_blas_thread(), pair_engine.PairEngine(scheduler, cache) as engine:
         return _align_scans(engine, clouds, normals, options, params, checkpoint, cfg, progress)
 
 

@@ -52,7 +52,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
-from rpmnet_jax.geometry import scoring
+from rpmnet_jax.geometry import scoring, threads
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import candidates as candidates_lib, global_search, options as options_lib, prepare
 from rpmnet_jax.pairwise import doubt, starts as starts_lib
@@ -107,6 +107,7 @@ class Answer(NamedTuple):
     support: tuple = ()  # the inits of the refined starts that ended within AMBIGUITY_DEG of it (itself included)
 
 
+@threads.one_blas_thread()  # BLAS leaves the cores to the compiled loops (geometry.threads)
 def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
           num_points: int = 1024, num_iters: int = 5, sampling: str = "random", seed: int = 0,
           reestimate_normals: bool = False, centering: str = "separate", init: str = "auto",

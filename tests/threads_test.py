@@ -1,0 +1,62 @@
+"""geometry.threads: BLAS runs on one thread inside one_blas_thread (and inside align), the caller's setting comes
+back on leaving; the parallel FPFH loops give the serial loops' values."""
+
+import numpy as np
+import pytest
+from threadpoolctl import threadpool_info
+
+from rpmnet_jax.geometry import fpfh, threads
+
+
+def _blas_threads():
+    return [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+
+
+def test_one_blas_thread_limits_blas_and_restores_it():
+    before = _blas_threads()
+    if not before:
+        pytest.fail("no BLAS library found: NumPy always loads one")
+    with threads.one_blas_thread():
+        assert _blas_threads() == [1] * len(before)
+    assert _blas_threads() == before
+
+
+def test_align_runs_with_one_blas_thread(monkeypatch):
+    """align's BLAS calls (FPFH's feature matching) see one thread; afterwards the caller's setting is back."""
+    from rpmnet_jax.geometry import feature_ransac
+    from rpmnet_jax.pairwise import alignment
+
+    seen = []
+    nearest = feature_ransac.nearest_rows
+    monkeypatch.setattr(feature_ransac, "nearest_rows", lambda *a, **k: (seen.append(_blas_threads()), nearest(*a, **k))[1])
+    before = _blas_threads()
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(400, 3))
+    alignment.align(pts, pts + 0.01, init="classical")
+    assert seen and all(s == [1] * len(before) for s in seen)
+    assert _blas_threads() == before
+
+
+def _spfh_serial(points, normals, idx, valid):
+    """The SPFH as one plain loop over the rows (the parallel loop's oracle), from the same pair features."""
+    n, k = idx.shape
+    hist = np.zeros((n, 3 * fpfh.BINS))
+    for i in range(n):
+        count = int(valid[i, 1:].sum())
+        for j in range(1, k):
+            if valid[i, j]:
+                f1, f2, f3, _ = fpfh.pair_features(points[i], normals[i], points[idx[i, j]], normals[idx[i, j]])
+                for block, (value, low, high) in enumerate(((f1, -np.pi, np.pi), (f2, -1, 1), (f3, -1, 1))):
+                    b = fpfh._bin(fpfh.BINS * (value - low) / (high - low))
+                    hist[i, block * fpfh.BINS + b] += 100.0 / count
+    return hist
+
+
+def test_parallel_spfh_matches_a_serial_loop():
+    rng = np.random.default_rng(1)
+    points = rng.normal(size=(150, 3))
+    normals = rng.normal(size=(150, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    idx, _, valid = fpfh.neighbours(points, 0.8, 20)
+    np.testing.assert_allclose(fpfh.spfh(points, normals, idx, valid), _spfh_serial(points, normals, idx, valid),
+                               rtol=0, atol=1e-9)
