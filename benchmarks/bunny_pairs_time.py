@@ -1,6 +1,8 @@
 """Seconds per Stanford bunny pair: the default :func:`rpmnet_jax.align` on the full scans beside Open3D's recipe on
 the 1,024-point samples ``rpmnet-eval-scans`` prepares (``ransac_icp``) and Open3D's scan recipe on the full scans
-(voxel 2 mm first, :func:`rpmnet_jax.evaluation.baselines.open3d_scan_pair`), same process, one after the other.
+(voxel 2 mm first, :func:`rpmnet_jax.evaluation.baselines.open3d_scan_pair`), and the default ``align`` on the same
+1,024-point samples (with their normals) as ``ransac_icp`` (``rpmnet_auto_samples``), same process, one after the
+other.
 
     python benchmarks/bunny_pairs_time.py [--scans ../shared/data/stanford_bunny] [--repeats 3] [--voxel 0.002]
 
@@ -47,7 +49,10 @@ def main() -> None:
         src, ref = clouds[src_name], clouds[ref_name]
         gt = poses_io.relative_motion(truth, src_name, ref_name)
         pair = prepare.prepare_pair(src, ref, None, None, num_points=1024, seed=0)
+        s6, r6 = (np.asarray(x[0], np.float64) for x in (pair.src6, pair.ref6))  # the samples, unit-sphere frame
         methods = {"rpmnet_auto": lambda: alignment.align(src, ref, params=params).transform,
+                   "rpmnet_auto_samples": lambda: pair.to_callers_units(alignment.align(
+                       s6[:, :3], r6[:, :3], s6[:, 3:], r6[:, 3:], params=params).transform[:3]),
                    "ransac_icp": lambda: pair.to_callers_units(np.asarray(ransac(pair.src6, pair.ref6))[0, -1]),
                    "open3d_scan_pair": lambda: baselines.open3d_scan_pair(src, ref, a.voxel)}
         record = {"task": "bunny_pair", "pair": f"{src_name}:{ref_name}"}
