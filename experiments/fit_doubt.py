@@ -79,28 +79,22 @@ def scan_rows(count: int) -> list:
 def collect_scans(a) -> None:
     from experiments import network_trust
     from rpmnet_jax.evaluation import doubt_records
-    from rpmnet_jax.pairwise import alignment
     from rpmnet_jax.weights import loading
     params = loading.load_params(None)
     stop = time.time() + 60 * a.minutes
-    done = {doubt_records.key(r) for r in doubt_records.read(a.cache)}
+
+    def jobs(row):
+        for _, i, j, kind, src, ref, gt in network_trust.scan_pairs([row], 12):
+            for init in SCAN_INITS:
+                meta = {"set": "scans", "split": "train", "protocol": init, "rot_mag": None, "seed": row,
+                        "setting": kind, "idx": 100 * i + j, "group": f"scans/{row}"}
+                yield doubt_records.Job(meta, lambda src=src, ref=ref, gt=gt, init=init:
+                                        (src, ref, None, None, gt, {"init": init}, {}))
+
     for row in scan_rows(a.meshes):
         if time.time() > stop:
             return
-        with open(a.cache, "a") as f:
-            for _, i, j, kind, src, ref, gt in network_trust.scan_pairs([row], 12):
-                for init in SCAN_INITS:
-                    meta = {"set": "scans", "split": "train", "protocol": init, "rot_mag": None, "seed": row,
-                            "setting": kind, "idx": 100 * i + j, "group": f"scans/{row}"}
-                    if doubt_records.key(meta) in done:
-                        continue
-                    if time.time() > stop:
-                        return
-                    t0 = time.perf_counter()
-                    ans = alignment.align(src, ref, params=params, init=init)
-                    f.write(json.dumps(doubt_records.record(ans, gt[:3], **meta,
-                                                            seconds=time.perf_counter() - t0)) + "\n")
-                    f.flush()
+        doubt_records.collect_jobs(jobs(row), params, a.cache, progress=False, deadline=stop)
         rows = doubt_records.read(a.cache)
         print(json.dumps({"mesh": row, "pairs": len(rows), "wrong": int(doubt_records.labels(rows).sum()),
                           "minutes_left": round((stop - time.time()) / 60, 1)}), flush=True)

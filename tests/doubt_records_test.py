@@ -22,3 +22,27 @@ def test_record_round_trips_the_features_and_measures_the_error(tmp_path):
     path = tmp_path / "r.jsonl"
     path.write_text(json.dumps(rec) + "\n")
     assert doubt_records.read(str(path)) == [rec] and doubt_records.read(str(tmp_path / "none.jsonl")) == []
+
+
+def test_collect_jobs_skips_recorded_pairs_and_stops_at_the_deadline(tmp_path):
+    """Each job's pair is aligned with its keywords and recorded with its meta and extra fields; a second run over
+    the same jobs loads and aligns none of them; past the deadline nothing starts."""
+    pts, nrm = asymmetric_shape(seed=3, n=1200)
+    truth = rotation_about([1, 0, 1], 20.0)
+    loaded = []
+
+    def job(idx):
+        def load():
+            loaded.append(idx)
+            return (pts[:800], pts[400:] @ truth.T, nrm[:800], nrm[400:] @ truth.T, np.c_[truth, np.zeros(3)],
+                    {"init": "classical"}, {"label": "toy"})
+        return doubt_records.Job({"set": "toy", "split": "train", "idx": idx}, load)
+
+    path = str(tmp_path / "r.jsonl")
+    new = doubt_records.collect_jobs([job(0), job(1)], None, path, progress=False)
+    assert [r["idx"] for r in new] == [0, 1] and loaded == [0, 1]
+    assert all(r["label"] == "toy" and r["init"] == "classical" and r["error_deg"] < 1 and r["seconds"] > 0
+               for r in new)
+    assert doubt_records.collect_jobs([job(0), job(1)], None, path, progress=False) == [] and loaded == [0, 1]
+    assert doubt_records.collect_jobs([job(2)], None, path, progress=False, deadline=0.0) == [] and loaded == [0, 1]
+    assert [r["idx"] for r in doubt_records.read(path)] == [0, 1]

@@ -8,6 +8,7 @@ import json
 import os
 import time
 import types
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -62,26 +63,53 @@ def key(rec: dict) -> tuple:
     return tuple(rec.get(k) for k in ("set", "split", "protocol", "rot_mag", "seed", "setting", "idx"))
 
 
-def collect(ds, indices, params, path: str, progress: bool = True, **meta) -> list:
-    """Runs the default ``align`` on pairs ``indices`` of dataset ``ds`` and appends one :func:`record` per pair to
-    the JSON-lines ``path``; pairs already there (same :func:`key`) are skipped. Returns the new records."""
+class Job(NamedTuple):
+    """One pair for :func:`collect_jobs`: its record's ``meta`` (``key(meta)`` names it) and ``load()``, called only
+    for a pair not yet recorded, returning ``(src (N, 3), ref (M, 3), src_normals or None, ref_normals or None,
+    transform_gt (3 or 4, 4), align keywords, extra record fields)``."""
+
+    meta: dict
+    load: Callable[[], tuple]
+
+
+def collect_jobs(jobs, params, path: str, *, progress: bool = True, total: int | None = None, desc: str = "",
+                 deadline: float | None = None) -> list:
+    """Runs the default ``align`` (with each job's keywords) on every :class:`Job` and appends one :func:`record` per
+    pair to the JSON-lines ``path``, flushed as it goes; pairs already there (same :func:`key`) are skipped, and
+    nothing more starts after ``deadline`` (``time.time()``). Returns the new records."""
     from tqdm.auto import tqdm
 
     done = {key(r) for r in read(path)}
     out = []
     with open(path, "a") as f:
-        for i in tqdm(list(indices), disable=not progress, desc=str(meta.get("setting", ""))):
-            m = {**meta, "protocol": ds.protocol, "rot_mag": float(ds.rot_mag), "idx": int(i)}
-            if key(m) in done:
+        for job in tqdm(jobs, total=total, disable=not progress, desc=desc):
+            if key(job.meta) in done:
                 continue
-            d = ds[int(i)]
-            s, r = np.asarray(d["points_src"], np.float64), np.asarray(d["points_ref"], np.float64)
+            if deadline is not None and time.time() > deadline:
+                break
+            src, ref, src_normals, ref_normals, gt, kwargs, extra = job.load()
             t0 = time.perf_counter()
-            a = alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params,
-                                num_points=max(len(s), len(r)))
-            rec = record(a, d["transform_gt"], **m, label=ds.class_names[int(d["label"])],
-                         seconds=time.perf_counter() - t0)
+            a = alignment.align(src, ref, src_normals, ref_normals, params=params, **kwargs)
+            rec = record(a, np.asarray(gt)[:3], **job.meta, **extra, seconds=time.perf_counter() - t0)
             f.write(json.dumps(rec) + "\n")
             f.flush()
             out.append(rec)
     return out
+
+
+def collect(ds, indices, params, path: str, progress: bool = True, **meta) -> list:
+    """:func:`collect_jobs` on pairs ``indices`` of dataset ``ds`` (``align`` at the dataset's number of points,
+    with its normals)."""
+
+    def job(i):
+        def load():
+            d = ds[i]
+            s, r = np.asarray(d["points_src"], np.float64), np.asarray(d["points_ref"], np.float64)
+            return (s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], d["transform_gt"], {"num_points": max(len(s), len(r))},
+                    {"label": ds.class_names[int(d["label"])]})
+
+        return Job({**meta, "protocol": ds.protocol, "rot_mag": float(ds.rot_mag), "idx": i}, load)
+
+    indices = [int(i) for i in indices]
+    return collect_jobs(map(job, indices), params, path, progress=progress, total=len(indices),
+                        desc=str(meta.get("setting", "")))
