@@ -1,11 +1,18 @@
 """geometry.threads: BLAS runs on one thread inside one_blas_thread (and inside align), the caller's setting comes
 back on leaving; the parallel FPFH loops give the serial loops' values."""
 
+import json
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_info
 
 from rpmnet_jax.geometry import fpfh, threads
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _blas_threads():
@@ -19,6 +26,42 @@ def test_one_blas_thread_limits_blas_and_restores_it():
     with threads.one_blas_thread():
         assert _blas_threads() == [1] * len(before)
     assert _blas_threads() == before
+
+
+OVERLAP = """
+import json, threading
+import numpy
+from threadpoolctl import threadpool_info
+from rpmnet_jax.geometry import threads
+blas = lambda: [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+before, seen = blas(), {}
+inside, first_left = threading.Event(), threading.Event()
+def first():
+    with threads.one_blas_thread():
+        inside.set()
+    first_left.set()
+def second():
+    inside.wait(10)
+    with threads.one_blas_thread():
+        first_left.wait(10)
+        seen["second, after the first left"] = blas()
+workers = [threading.Thread(target=second), threading.Thread(target=first)]
+[w.start() for w in workers]
+[w.join(20) for w in workers]
+print(json.dumps({"before": before, "seen": seen, "after": blas()}))
+"""
+
+
+def test_worker_threads_are_limited_inside_and_the_setting_is_back_after():
+    """Two worker threads (as a Dask worker's tasks; a fresh process whose main thread never set a limit), the first
+    leaving while the second is inside: the second still runs BLAS on one thread, and afterwards the process's
+    setting is the one from before."""
+    out = subprocess.run([sys.executable, "-c", OVERLAP], capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "PYTHONPATH": REPO})
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["before"] and got["seen"] == {"second, after the first left": [1] * len(got["before"])}
+    assert got["after"] == got["before"]
 
 
 def test_align_runs_with_one_blas_thread(monkeypatch):
