@@ -45,7 +45,7 @@ def one_blas_thread():
     """Within it, BLAS (NumPy's and SciPy's OpenBLAS, MKL) runs on one thread, so that it leaves the cores to
     Numba's parallel loops; the caller's settings come back on leaving. Made in the main thread, the setting holds
     for every thread of the process while it lasts; made in another thread (a Dask worker's task), OpenBLAS 0.3.31
-    honoured it for that thread's calls (the partial pairs of the ModelNet40 subset, `init="classical"` in a worker
+    honoured it for that thread's calls (the partial pairs of the ModelNet40 subset, ``init="classical"`` in a worker
     thread: 88 ms a pair without it, 30 ms with it), except once the main thread had set and restored a limit
     itself."""
     with _controller().limit(limits=1, user_api="blas"):
