@@ -32,6 +32,36 @@ def test_classical_starts_find_a_known_rotation(seed):
                 assert rotation_error_deg(s.transform[:3, :3], other.transform[:3, :3]) >= 45.0
 
 
+@pytest.mark.parametrize("dense", [False, True])
+def test_dense_clouds_take_their_hypotheses_from_a_voxel_grid(monkeypatch, dense):
+    """Clouds of at least DENSE_FACTOR × the network's samples (each) get their hypotheses from a voxel grid of
+    the whole clouds, and find the rotation from it; sparser ones from the samples, as before."""
+    pts, nrm = asymmetric_shape(1, 12000 if dense else 1600)
+    rot, t = rotation_about([0.3, -1.0, 0.6], 100.0), np.array([0.5, -0.2, 1.0])
+    pair = prepare.prepare_pair(pts[::2], pts[1::2] @ rot.T + t, nrm[::2], nrm[1::2] @ rot.T, num_points=256)
+    grids = []
+    grid = starts._voxel_grid
+    monkeypatch.setattr(starts, "_voxel_grid", lambda *a: grids.append(grid(*a)) or grids[-1])
+    found = starts.classical_starts(pair, 4, seed=0)
+    assert len(grids) == (2 if dense else 0)
+    if dense:  # one point per occupied cube: far fewer than the cloud, far more than the samples
+        assert all(256 < len(g[0]) < 6000 and g[1].shape == g[0].shape for g in grids)
+    best = pair.to_callers_units(found[0].transform[:3])
+    assert rotation_error_deg(best[:3, :3], rot) < 10.0
+
+
+def test_a_large_grid_is_sampled_down(monkeypatch):
+    """Beyond GRID_POINTS cubes a seeded sample of them is kept (feature matching compares every pair)."""
+    pts, nrm = asymmetric_shape(1, 12000)
+    pair = prepare.prepare_pair(pts[::2], pts[1::2], nrm[::2], nrm[1::2], num_points=256)
+    full = starts._voxel_grid(pair, "src", 0)[0]
+    monkeypatch.setattr(starts, "GRID_POINTS", 500)
+    few = starts._voxel_grid(pair, "src", 0)[0]
+    assert len(full) > 500 and len(few) == 500
+    assert (few[:, None] == full[None]).all(-1).any(1).all()  # rows of the grid
+    np.testing.assert_array_equal(few, starts._voxel_grid(pair, "src", 0)[0])  # seeded
+
+
 def test_identity_start():
     s = starts.identity_start()
     assert s.init == "identity" and s.confidence == 0.0
