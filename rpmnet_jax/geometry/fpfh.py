@@ -94,7 +94,7 @@ def neighbours(points: np.ndarray, radius: float, max_nn: int, tree: kdtree.KdTr
     k = min(max_nn, len(points))
     gridded = tree is None and len(points) > 0 and 0 < radius < np.inf and bool(np.isfinite(points).all())
     if gridded and np.all(np.ptp(points, axis=0) / radius < GRID_CELLS_PER_AXIS):
-        d2, idx = _grid_search(points, float(radius), k, 8 * threads.start_pool())
+        d2, idx = _grid_search(points, float(radius), k, threads.chunks())
         valid = np.isfinite(d2)
     else:
         tree = tree or kdtree.KdTree(points)

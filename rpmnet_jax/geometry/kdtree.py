@@ -212,11 +212,11 @@ def query_into(nodes, queries, k, bound2, dist, idx, chunks):
 
 
 def chunks_for(count: int) -> int:
-    """How many pieces :func:`query_into` splits ``count`` queries into: 1 below ``PARALLEL_QUERIES``, else 8 per
-    thread (uneven queries even out). Every call from Python into code that holds :func:`query_into` goes through
-    here, so this is also where Numba's thread pool is started (:func:`rpmnet_jax.geometry.threads.start_pool`)."""
-    pool = threads.start_pool()
-    return 8 * pool if count >= PARALLEL_QUERIES else 1
+    """How many pieces :func:`query_into` splits ``count`` queries into: 1 below ``PARALLEL_QUERIES``, else
+    :func:`rpmnet_jax.geometry.threads.chunks`. Every call from Python into code that holds :func:`query_into` goes
+    through here, so this is also where Numba's thread pool is started (even for one piece)."""
+    pieces = threads.chunks()
+    return pieces if count >= PARALLEL_QUERIES else 1
 
 
 class KdTree:

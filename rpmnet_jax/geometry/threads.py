@@ -25,6 +25,15 @@ def start_pool() -> int:
     return numba.get_num_threads()
 
 
+CHUNKS_PER_THREAD = 8  # a parallel loop over rows runs in this many pieces per thread: uneven rows even out
+
+
+def chunks() -> int:
+    """How many pieces a parallel loop over rows splits them into (:data:`CHUNKS_PER_THREAD` per thread of the
+    pool, which this starts: :func:`start_pool`)."""
+    return CHUNKS_PER_THREAD * start_pool()
+
+
 _found = (-1, None)  # (how many modules were imported, the BLAS libraries found then)
 
 

@@ -75,8 +75,7 @@ def _voxel_grid(pair: prepare.PreparedPair, which: str, seed: int) -> tuple:
     correspondence and ended on a 180° flip of fitness 0.75, taken as strong."""
     points, core = (pair.src, pair.src_core) if which == "src" else (pair.ref, pair.ref_core)
     grid, _ = sampling.voxel_downsample(pair.to_unit(points[core], which), None, VOXEL)
-    if len(grid) > GRID_POINTS:
-        grid = grid[sampling.sample_indices(np.random.default_rng(seed), len(grid), GRID_POINTS)]
+    grid = grid[sampling.sample_indices(np.random.default_rng(seed), len(grid), GRID_POINTS)]  # all when fewer
     return grid, normals_lib.estimate_normals(grid)
 
 
