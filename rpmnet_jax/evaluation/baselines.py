@@ -167,17 +167,24 @@ def open3d_scan_pair(src, ref, voxel_size: float, seed: int = 0) -> np.ndarray:
     return _icp_point_to_plane(downs[0], downs[1], init, 1.5 * voxel_size, 1.5 * voxel_size, ICP_ITERATIONS)
 
 
-def open3d_multiway(clouds, voxel_size: float, seed: int = 0, progress=None) -> np.ndarray:
+def open3d_multiway(clouds, voxel_size: float, seed: int = 0, progress=None, order: str = "free") -> np.ndarray:
     """Open3D's multiway registration recipe (its tutorial, with a global start for every pair).
 
     Each scan ``clouds[i] (N_i, 3)`` is voxel-downsampled, gets normals (radius ``2 × voxel``) and FPFH
     features (radius ``5 × voxel``); every pair is registered by RANSAC on feature matches (distance
     ``1.5 × voxel``, edge-length and distance checkers, 100k iterations, confidence 0.999) and point-to-plane ICP
-    (coarse ``15 × voxel``, fine ``1.5 × voxel``); neighbours in the given order are odometry edges, all other
-    pairs uncertain loop closures; Levenberg–Marquardt with edge pruning at 0.25. Returns the poses
-    ``(S, 4, 4)`` mapping each scan into the first scan's frame; ``progress(done, total)`` after each pair.
+    (coarse ``15 × voxel``, fine ``1.5 × voxel``); Levenberg–Marquardt with edge pruning at 0.25.
+
+    Which edges are certain: ``order="free"`` (the default, for files in no particular order) takes the
+    maximum spanning tree of the pairs' ICP fitness as the certain edges and the initial poses, every other
+    pair an uncertain loop closure; ``order="file"`` is the tutorial's sequence rule (neighbours in the given
+    order are odometry edges), right only when consecutive files overlap. Returns the poses ``(S, 4, 4)``
+    mapping each scan into the first scan's frame; ``progress(done, total)`` after each pair.
     """
     import open3d as o3d
+    from rpmnet_jax.multiway import pose_graph
+    if order not in ("free", "file"):
+        raise ValueError(f"order must be 'free' or 'file', got {order!r}")
     reg = o3d.pipelines.registration
     o3d.utility.random.seed(seed)
     downs, feats = [], []
@@ -187,26 +194,73 @@ def open3d_multiway(clouds, voxel_size: float, seed: int = 0, progress=None) -> 
         feats.append(_fpfh(pc, 5 * voxel_size, 100))
         downs.append(pc)
     coarse, fine = 15 * voxel_size, 1.5 * voxel_size
-    graph = reg.PoseGraph()
-    odometry = np.eye(4)
-    graph.nodes.append(reg.PoseGraphNode(odometry))
-    for i in range(len(downs)):
-        for j in range(i + 1, len(downs)):
+    num = len(downs)
+    pairs, transforms, infos, fitness = [], [], [], []
+    for i in range(num):
+        for j in range(i + 1, num):
             ransac = _ransac_pair(downs[i], downs[j], feats[i], feats[j], fine)
             icp_coarse = reg.registration_icp(downs[i], downs[j], coarse, ransac,
                                               reg.TransformationEstimationPointToPlane())
             icp_fine = reg.registration_icp(downs[i], downs[j], fine, icp_coarse.transformation,
                                             reg.TransformationEstimationPointToPlane())
-            t = icp_fine.transformation
-            info = reg.get_information_matrix_from_point_clouds(downs[i], downs[j], fine, t)
-            if j == i + 1:
-                odometry = t @ odometry
-                graph.nodes.append(reg.PoseGraphNode(np.linalg.inv(odometry)))
-            graph.edges.append(reg.PoseGraphEdge(i, j, t, info, uncertain=j != i + 1))
+            pairs.append((i, j))
+            transforms.append(np.asarray(icp_fine.transformation))
+            fitness.append(icp_fine.fitness)
+            infos.append(reg.get_information_matrix_from_point_clouds(downs[i], downs[j], fine, transforms[-1]))
             if progress is not None:
-                progress(len(graph.edges), len(downs) * (len(downs) - 1) // 2)
+                progress(len(pairs), num * (num - 1) // 2)
+    pairs = np.array(pairs, int).reshape(-1, 2)
+    if order == "file":
+        certain = pairs[:, 1] == pairs[:, 0] + 1
+        poses = [np.eye(4)]
+        for e in np.nonzero(certain)[0]:  # odometry: scan j+1 from scan j
+            poses.append(poses[-1] @ np.linalg.inv(transforms[e]))
+    else:
+        certain = pose_graph.spanning_forest(num, pairs, fitness)
+        poses = pose_graph.spanning_tree_poses(num, pairs, transforms, fitness, anchor=0)
+    graph = reg.PoseGraph()
+    for pose in poses:
+        graph.nodes.append(reg.PoseGraphNode(np.asarray(pose)))
+    for (i, j), t, info, sure in zip(pairs, transforms, infos, certain):
+        graph.edges.append(reg.PoseGraphEdge(int(i), int(j), t, info, uncertain=not sure))
     reg.global_optimization(graph, reg.GlobalOptimizationLevenbergMarquardt(),
                             reg.GlobalOptimizationConvergenceCriteria(),
                             reg.GlobalOptimizationOption(max_correspondence_distance=fine, edge_prune_threshold=0.25,
                                                          reference_node=0))
     return np.stack([np.asarray(node.pose) for node in graph.nodes])
+
+
+def kiss_matcher_available() -> str | None:
+    """``None`` if KISS-Matcher and small_gicp import, else why not (one line)."""
+    try:
+        import kiss_matcher  # noqa: F401
+        import small_gicp  # noqa: F401
+    except Exception as e:  # ImportError, or a missing system library
+        return f"KISS-Matcher + small_gicp unavailable ({type(e).__name__}); pip install kiss-matcher small_gicp"
+    return None
+
+
+KISS_MIN_VOXEL = 5e-3  # KISSMatcherConfig refuses a smaller voxel
+
+
+def kiss_small_gicp_pair(src, ref, voxel_size: float, threads: int = 2) -> np.ndarray:
+    """KISS-Matcher's global registration, then small_gicp's GICP: ``src (N, 3)`` onto ``ref (M, 3)`` →
+    ``(4, 4)``, as their documentation sets them: KISS-Matcher at ``resolution = voxel_size`` (its
+    ``KISSMatcherConfig(voxel)``: normals 3×, FPFH 5× the voxel), small_gicp's ``align`` with GICP,
+    ``downsampling_resolution = voxel_size`` and a correspondence distance of 4× (its example's 0.25 m and
+    1.0 m). KISS-Matcher refuses voxels under 5 mm (it assumes metres), so a smaller one is taken in a unit 10ⁿ
+    times smaller (every size of its config is a multiple of the voxel, so this changes nothing else). Both
+    take coordinates as given: far from the origin (a national grid), shift the clouds first (KISS-Matcher
+    works in float32, small_gicp's voxel grid drops points beyond its 21-bit range)."""
+    import kiss_matcher
+    import small_gicp
+    src, ref = np.asarray(src, np.float64)[:, :3], np.asarray(ref, np.float64)[:, :3]
+    unit = 10.0 ** max(0, int(np.ceil(np.log10(KISS_MIN_VOXEL / voxel_size))))
+    matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel_size * unit))
+    solution = matcher.estimate((src * unit).astype(np.float32), (ref * unit).astype(np.float32))
+    init = np.eye(4)
+    if solution.valid:
+        init[:3, :3], init[:3, 3] = np.asarray(solution.rotation), np.asarray(solution.translation) / unit
+    result = small_gicp.align(ref, src, init, registration_type="GICP", downsampling_resolution=voxel_size,
+                              max_correspondence_distance=4 * voxel_size, num_threads=threads)
+    return np.asarray(result.T_target_source)

@@ -9,7 +9,8 @@ import warnings
 import numpy as np
 
 STRAY_QUANTILE = 0.9  # a point is stray beyond STRAY_FACTOR × this quantile of the distances from the median
-STRAY_FACTOR = 3.0
+STRAY_FACTOR = 3.0  # with STRAY_QUANTILE: chosen on the 1,220 real test clouds (their farthest point <= 2.4x, so
+# none is stray; tuning data: numbers on that data are not held-out)
 MIN_POINTS = 3  # fewer cannot fix a rigid transform
 
 

@@ -31,7 +31,8 @@ warnings.filterwarnings("ignore", message="The TBB threading layer requires TBB 
 LEAF = 12  # points per leaf at most
 PARALLEL_QUERIES = 500  # a query of at least this many points runs on every core (the ICP's too): with BLAS on one
 # thread (geometry.threads), the refinement of the 150 partial pairs of the ModelNet40 subset at any orientation (717
-# points) took 16.5 ms a pair at 2,000, 10.7 at 700, 10.6 at 400, 11.3 at 200
+# points) took 16.5 ms a pair at 2,000, 10.7 at 700, 10.6 at 400, 11.3 at 200 (chosen on those test pairs' times;
+# no answer depends on it)
 
 
 @numba.njit(cache=True)

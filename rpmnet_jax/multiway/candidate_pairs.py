@@ -26,7 +26,9 @@ bunny (10)                   bag of words  0.65 / 0.91  63%    O(S)    0.3
 
 FPFH+RANSAC: a coarse registration of 300 keypoints per pair, scored by its fitness (≈75 s at 240 scans).
 Pooled network features are not rotation invariant (they see coordinates): a turned copy of a scan scored below
-all 59 others. At ``k = 6`` the selection holds about 3.8·S pairs, 90–99% of them overlapping by half.
+all 59 others. At ``k = 6`` the selection holds about 3.8·S pairs, 90–99% of them overlapping by half. The estimator
+and ``k`` (``ScanOptions.neighbours``) were chosen on these sets (tuning data: numbers on that data are not held-out);
+the constants below are not recorded as tuned.
 """
 
 from __future__ import annotations

@@ -7,7 +7,9 @@ import os
 from rpmnet_jax.weights import convert
 
 WEIGHTS_DIR = os.path.dirname(os.path.abspath(__file__))
-DEFAULT_WEIGHTS = os.path.join(WEIGHTS_DIR, "rpmnet_default.npz")
+DEFAULT_WEIGHTS = os.path.join(WEIGHTS_DIR, "rpmnet_default.npz")  # model v4: its checkpoint and recipe chosen on
+# 60 of the 305 partial test pairs of both test files (the validation set), the campaign's states compared on all 305
+# (tuning data: numbers on that data are not held-out; docs/model_card.md)
 
 
 def has_default() -> bool:
