@@ -1,0 +1,114 @@
+"""The real-scan benchmark (``benchmarks/real_scans``): its committed sets (source, licence, split, poses that
+put overlapping scans on each other), the national-grid variant, the turned pairs, Open3D's multiway recipe
+used order-free on shuffled real scans, and the smallest set run end to end through the benchmark's command."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import unavailable
+from rpmnet_jax.evaluation import baselines
+from rpmnet_jax.ops import se3
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "benchmarks", "real_scans"))
+import sets  # noqa: E402
+
+SMALLEST = "happy_stand"
+
+
+def test_sets_are_complete_and_split_by_scan():
+    names = sets.available()
+    assert SMALLEST in names and len(names) >= 3
+    kinds = {sets.kind(n) for n in names}
+    assert {"object", "indoor", "outdoor_lidar"} <= kinds
+    total = 0
+    for name in names:
+        folder = os.path.join(sets.DATA, name)
+        total += sum(os.path.getsize(os.path.join(folder, f)) for f in os.listdir(folder))
+        with open(os.path.join(folder, "meta.json")) as f:
+            meta = json.load(f)
+        assert meta["licence"] and meta["source_url"].startswith("https://") and meta["kind"] in sets.VOXEL
+        assert os.path.isfile(os.path.join(folder, "SOURCE.md"))
+        assert not set(meta["tune"]) & set(meta["report"]) and len(meta["report"]) >= 3
+    assert total <= 40 * 2**20
+
+
+def test_true_poses_put_overlapping_scans_on_each_other():
+    s = sets.load(SMALLEST, "report")
+    shares = [sets.overlap(s, a, a + 1) for a in range(len(s.names) - 1)]  # neighbours on the turntable
+    assert min(shares) > 0.7
+    wrong = sets.ScanSet(**{**s.__dict__, "poses": s.poses[[0, 3, 2, 1, 4, 5]]})  # scan 1 posed as scan 3
+    assert sets.overlap(wrong, 0, 1) < 0.5 * sets.overlap(s, 0, 1)
+
+
+def test_grid_variant_keeps_relative_motions_and_sits_in_the_grid():
+    s = sets.load(SMALLEST, "report")
+    g = sets.georeferenced(s)
+    assert g.kind == "georeferenced" and np.all(np.abs(g.clouds[0].mean(0) - sets.GRID_ORIGIN) < 10.0)
+    for a, b in ((0, 1), (2, 4)):
+        local = np.linalg.inv(s.poses[b]) @ s.poses[a]
+        grid = np.linalg.inv(g.poses[b]) @ g.poses[a]
+        moved_local = s.clouds[a] @ local[:3, :3].T + local[:3, 3]
+        moved_grid = g.clouds[a] @ grid[:3, :3].T + grid[:3, 3]
+        offset_b = g.clouds[b][0] - s.clouds[b][0]  # scan b's own shift into the grid
+        np.testing.assert_allclose(moved_grid - offset_b, moved_local, atol=1e-7)
+    assert g.extent == pytest.approx(s.extent, rel=1e-6)
+
+
+def test_turn_is_a_rotation_of_90_to_180_degrees_about_the_centroid():
+    points = np.random.default_rng(0).normal(size=(200, 3))
+    for seed in range(5):
+        turned, motion = sets.turn(points, seed)
+        np.testing.assert_allclose(points @ motion[:3, :3].T + motion[:3, 3], turned, atol=1e-12)
+        assert 90.0 <= float(se3.rotation_angle_deg(motion[:3, :3])) <= 180.0
+        np.testing.assert_allclose(turned.mean(0), points.mean(0), atol=1e-12)
+
+
+def test_open3d_multiway_order_free_places_shuffled_real_scans():
+    """Open3D's recipe used order-free on the report scans in a shuffled order: every scan within 1°
+    (given in file order as odometry, consecutive files of a shuffled set need not overlap)."""
+    why = baselines.open3d_available()
+    if why:
+        unavailable(why)
+    s = sets.load(SMALLEST, "report")
+    order = [3, 0, 5, 1, 4, 2]
+    clouds = [s.clouds[i][::4] for i in order]
+    poses = baselines.open3d_multiway(clouds, s.voxel)
+    truth = np.linalg.inv(s.poses[order[0]]) @ s.poses[order]
+    for pose, true in zip(poses, truth):
+        assert float(se3.rotation_angle_deg(true[:3, :3].T @ pose[:3, :3])) < 1.0
+    with pytest.raises(ValueError, match="order"):
+        baselines.open3d_multiway(clouds, s.voxel, order="sorted")
+
+
+def _worker(task, method, extra=()):
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "real_scans", "run.py"), "--worker",
+                          "--set", SMALLEST, "--part", "report", "--task", task, "--method", method, *extra],
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_benchmark_pairs_of_the_smallest_set():
+    """The benchmark's own worker on one pair of the object set, as captured and turned: ``align`` right on both."""
+    record = _worker("pairs", "rpmnet_jax", ["--max-pairs", "1"])
+    assert [r["mode"] for r in record["rows"]] == ["captured", "turned"]
+    assert record["summary"]["success"] == 1.0 and record["peak_rss_mb"] > 0
+    assert all(r["rotation_deg"] < 1.0 and r["seconds"] > 0 for r in record["rows"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["rpmnet_jax", "open3d", "kiss_small_gicp", "rpmnet_jax_scans", "open3d_multiway"])
+def test_benchmark_runs_the_smallest_set_with_every_method(method):
+    if method in ("open3d", "open3d_multiway") and baselines.open3d_available():
+        unavailable(baselines.open3d_available())
+    if method == "kiss_small_gicp" and baselines.kiss_matcher_available():
+        unavailable(baselines.kiss_matcher_available())
+    task = "scans" if method.endswith(("scans", "multiway")) else "pairs"
+    record = _worker(task, method, ["--max-pairs", "3"])
+    assert record["summary"]["n"] == (5 if task == "scans" else 6)
+    assert record["summary"]["success"] >= 0.8
