@@ -2,15 +2,17 @@
 ``truth.conf`` of ``python -m experiments.make_range_scans``, or any folder of scans with a Stanford ``.conf``).
 
     python benchmarks/campaign_time.py SET [--conf truth.conf] [--units m] [--limit-scans N] [--skip-open3d]
-        [--open3d-voxel V] [--open3d-timeout SECONDS] [--repeat 1] [--out-jsonl results.jsonl]
+        [--open3d-voxel V] [--open3d-order free|file] [--open3d-timeout SECONDS] [--repeat 1] [--out-jsonl results.jsonl]
 
 Each side runs in a fresh process of its own, one after the other, on the scans of the ``.conf`` in its order
 (file order; for a shuffled set, order says nothing about overlap): ours reads them with
 :mod:`rpmnet_jax.io.clouds` and runs :func:`rpmnet_jax.align_scans` (default options; the persistent
 compilation cache as ``rpmnet-register-scans`` sets it: ``RPMNET_COMPILATION_CACHE=off`` for a cold start);
 Open3D reads them with its own reader and runs :func:`rpmnet_jax.evaluation.baselines.open3d_multiway`
-(voxel ``--open3d-voxel``, default 1.5% of the median robust scan radius: 2 mm on the bunny; the recipe takes
-neighbouring files as overlapping, with odometry edges it never prunes).
+(voxel ``--open3d-voxel``, default 1.5% of the median robust scan radius: 2 mm on the bunny), used order-free:
+its certain edges are the maximum spanning tree of the pairs' fitness, every other pair an uncertain loop
+closure, so the file order does not matter (``--open3d-order file`` gives it neighbouring files as odometry
+edges, as its tutorial does for a sequence: a "file order" result, wrong for shuffled files).
 
 Prints one JSON line per run: ``seconds`` (reading and registration), ``process_seconds`` (the whole process:
 start, imports, compilation), the process's peak resident memory (``peak_rss_mb``; ``rss_after_imports_mb``
@@ -75,7 +77,7 @@ def run_ours(paths, seed: int) -> dict:
             "points": int(sum(len(s) for s in scans)), **bench_utils.environment()}
 
 
-def run_open3d(paths, voxel: float, seed: int) -> dict:
+def run_open3d(paths, voxel: float, seed: int, order: str = "free") -> dict:
     """Reads ``paths`` with Open3D and registers them with its multiway recipe (in this process)."""
     import numpy as np
     import open3d as o3d
@@ -87,13 +89,13 @@ def run_open3d(paths, voxel: float, seed: int) -> dict:
     scans = [np.asarray(o3d.io.read_point_cloud(p).points) for p in paths]
     read_seconds = time.perf_counter() - t0
     poses = baselines.open3d_multiway(  # progress on stderr: how far a run stopped by --open3d-timeout came
-        scans, voxel, seed=seed, progress=lambda done, total: print(f"pairs {done} {total} {time.perf_counter() - t0:.1f}",
+        scans, voxel, seed=seed, order=order, progress=lambda done, total: print(f"pairs {done} {total} {time.perf_counter() - t0:.1f}",
                                                                     file=sys.stderr, flush=True))
     seconds = time.perf_counter() - t0
     s = len(scans)
     return {"seconds": seconds, "read_seconds": read_seconds, "rss_after_imports_mb": base,
             "peak_rss_mb": bench_utils.peak_rss_mb(), "poses": poses.tolist(), "pairs_registered": s * (s - 1) // 2,
-            "voxel": voxel, "open3d": o3d.__version__, "points": int(sum(len(x) for x in scans)),
+            "voxel": voxel, "order": order, "open3d": o3d.__version__, "points": int(sum(len(x) for x in scans)),
             **bench_utils.environment()}
 
 
@@ -124,7 +126,7 @@ def _child(a) -> int:
     if a.side == "ours":
         record = run_ours(paths, a.seed)
     else:
-        record = run_open3d(paths, a.open3d_voxel, a.seed)
+        record = run_open3d(paths, a.open3d_voxel, a.seed, a.open3d_order)
     print(json.dumps(record))
     return 0
 
@@ -170,6 +172,8 @@ def main(argv=None) -> int:
     p.add_argument("--limit-scans", type=int, default=None, help="only the first N scans of the .conf")
     p.add_argument("--skip-open3d", action="store_true")
     p.add_argument("--open3d-voxel", type=float, default=None, help="Open3D's voxel size, the scans' units")
+    p.add_argument("--open3d-order", choices=("free", "file"), default="free",
+                   help="Open3D's certain edges: a spanning tree of pair fitness (free) or neighbouring files (file)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--repeat", type=int, default=1, help="fresh processes per side (default 1)")
     p.add_argument("--out-jsonl", default=None, help="append the JSON lines to this file")
@@ -195,7 +199,8 @@ def main(argv=None) -> int:
               "commit": commit(),
               "image_size": made.get("image_size"), "noise": made.get("noise"), "shuffled": made.get("shuffle"),
               **bench_utils.session("campaign_time.py", argv, bench_utils.available_cpus(), "default")}
-    child_argv = [a.set, "--conf", a.conf, "--seed", str(a.seed), "--open3d-voxel", repr(a.open3d_voxel)]
+    child_argv = [a.set, "--conf", a.conf, "--seed", str(a.seed), "--open3d-voxel", repr(a.open3d_voxel),
+                  "--open3d-order", a.open3d_order]
     child_argv += ["--limit-scans", str(a.limit_scans)] if a.limit_scans else []
     results = {}
     for side in ("ours",) + (() if a.skip_open3d else ("open3d",)):
