@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from conftest import unavailable
 from rpmnet_jax.evaluation import baselines
@@ -58,6 +59,24 @@ def test_grid_variant_keeps_relative_motions_and_sits_in_the_grid():
         offset_b = g.clouds[b][0] - s.clouds[b][0]  # scan b's own shift into the grid
         np.testing.assert_allclose(moved_grid - offset_b, moved_local, atol=1e-7)
     assert g.extent == pytest.approx(s.extent, rel=1e-6)
+
+
+def test_errors_are_the_same_in_the_grid():
+    """An answer 1° and 1 cm off at the source's sensor scores (1°, 1 cm) near the origin and in the grid
+    (taken at the origin of grid coordinates, the 1° alone moves it kilometres)."""
+    s = sets.load(SMALLEST, "report")
+    g = sets.georeferenced(s)
+    off = np.eye(4)
+    off[:3, :3] = Rotation.from_rotvec([0.0, np.radians(1.0), 0.0]).as_matrix()
+    off[:3, 3] = [0.01, 0.0, 0.0]
+    local_truth = np.linalg.inv(s.poses[1]) @ s.poses[0]
+    shift = lambda c: np.block([[np.eye(3), c[:, None]], [np.zeros((1, 3)), np.ones((1, 1))]])  # noqa: E731
+    grid_answer = shift(g.origins[1]) @ local_truth @ off @ shift(-g.origins[0])
+    grid_truth = np.linalg.inv(g.poses[1]) @ g.poses[0]
+    for answer, truth, at in ((local_truth @ off, local_truth, s.origins[0]), (grid_answer, grid_truth, g.origins[0])):
+        rot, trans = sets.errors(answer, truth, at)
+        assert rot == pytest.approx(1.0, abs=1e-6) and trans == pytest.approx(0.01, abs=1e-6)
+    assert sets.errors(grid_answer, grid_truth, np.zeros(3))[1] > 1e3
 
 
 def test_turn_is_a_rotation_of_90_to_180_degrees_about_the_centroid():

@@ -44,6 +44,7 @@ class ScanSet:
     voxel: float  # the voxel the tools' documentation gives for this kind of data (VOXEL)
     extent: float  # diagonal of the part's bounding box in the common frame (success: translation < 2 %)
     meta: dict
+    origins: np.ndarray  # (S, 3): each scan's sensor position in its own file's coordinates (errors are taken there)
 
 
 def available() -> list:
@@ -76,24 +77,34 @@ def load(name: str, part: str) -> ScanSet:
     files = {os.path.splitext(f)[0]: f for f in os.listdir(folder) if f.endswith(".ply")}
     clouds = [np.asarray(clouds_io.read_cloud(os.path.join(folder, files[n]))[0], np.float64) for n in names]
     poses = np.stack([truth[n] for n in names])
-    return ScanSet(name, meta["kind"], names, clouds, poses, VOXEL[meta["kind"]], _extent(clouds, poses), meta)
+    return ScanSet(name, meta["kind"], names, clouds, poses, VOXEL[meta["kind"]], _extent(clouds, poses), meta,
+                   np.zeros((len(names), 3)))
 
 
 def georeferenced(s: ScanSet) -> ScanSet:
     """``s`` moved into the national grid: scan ``i`` holds ``p + GRID_ORIGIN + t_i`` (``t_i`` its true
     position); its pose becomes ``C_i P_i C_i⁻¹``-like: grid point ``q`` ↦ ``R_i (q - c_i) + c_i`` with
     ``c_i = GRID_ORIGIN + t_i``, so the common frame is the grid."""
-    clouds, poses = [], []
+    clouds, poses, origins = [], [], []
     for points, pose in zip(s.clouds, s.poses):
         centre = GRID_ORIGIN + pose[:3, 3]
         clouds.append(points + centre)
+        origins.append(centre)
         grid = np.eye(4)
         grid[:3, :3] = pose[:3, :3]
         grid[:3, 3] = centre - pose[:3, :3] @ centre
         poses.append(grid)
     poses = np.stack(poses)
     meta = dict(s.meta, kind="georeferenced", georeferenced_from=s.name)
-    return ScanSet(s.name + "@grid", "georeferenced", s.names, clouds, poses, s.voxel, _extent(clouds, poses), meta)
+    return ScanSet(s.name + "@grid", "georeferenced", s.names, clouds, poses, s.voxel, _extent(clouds, poses), meta,
+                   np.array(origins))
+
+
+def subset(s: ScanSet, keep) -> ScanSet:
+    """The scans ``keep`` (indices) of ``s``; the extent is the subset's."""
+    clouds, poses = [s.clouds[i] for i in keep], s.poses[keep]
+    return dataclasses.replace(s, names=[s.names[i] for i in keep], clouds=clouds, poses=poses,
+                               extent=_extent(clouds, poses), origins=s.origins[keep])
 
 
 def _extent(clouds, poses) -> float:
@@ -120,6 +131,16 @@ def pairs(s: ScanSet, max_pairs: int, seed: int = 0) -> list:
         keep = np.sort(rng.choice(len(candidates), max_pairs, replace=False))
         candidates = [candidates[k] for k in keep]
     return candidates
+
+
+def errors(estimate, truth, at) -> tuple:
+    """``(rotation error °, translation error)`` of ``estimate (4, 4)`` against ``truth (4, 4)`` (both map a
+    source onto a reference), the translation error being the displacement of the source's point ``at (3,)``
+    (its sensor position): the same numbers whether the clouds sit near the origin or in a national grid."""
+    from rpmnet_jax import metrics
+    shift = np.eye(4)
+    shift[:3, 3] = at
+    return metrics.transform_errors(np.linalg.inv(shift) @ estimate @ shift, np.linalg.inv(shift) @ truth @ shift)
 
 
 def turn(points: np.ndarray, seed: int) -> tuple:
