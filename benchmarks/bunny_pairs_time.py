@@ -1,8 +1,9 @@
 """Seconds per Stanford bunny pair: the default :func:`rpmnet_jax.align` on the full scans beside Open3D's recipe on
 the 1,024-point samples ``rpmnet-eval-scans`` prepares (``ransac_icp``) and Open3D's scan recipe on the full scans
-(voxel 2 mm first, :func:`rpmnet_jax.evaluation.baselines.open3d_scan_pair`), and the default ``align`` on the same
-1,024-point samples (with their normals) as ``ransac_icp`` (``rpmnet_auto_samples``), same process, one after the
-other.
+(voxel 2 mm first, :func:`rpmnet_jax.evaluation.baselines.open3d_scan_pair`), KISS-Matcher + small_gicp on the
+full scans (the same voxel, :func:`~rpmnet_jax.evaluation.baselines.kiss_small_gicp_pair`), and the default ``align``
+on the same 1,024-point samples (with their normals) as ``ransac_icp`` (``rpmnet_auto_samples``), same process, one
+after the other. The full-scan methods compare with each other, the sample methods with each other.
 
     python benchmarks/bunny_pairs_time.py [--scans ../shared/data/stanford_bunny] [--repeats 3] [--voxel 0.002]
 
@@ -45,6 +46,7 @@ def main() -> None:
     first_src, first_ref = (clouds[n] for n in pairs[0])
     bench_utils.warm_align(first_src, first_ref, params=params)  # warm-up: every compilation
     baselines.open3d_scan_pair(first_src, first_ref, a.voxel)
+    baselines.kiss_small_gicp_pair(first_src, first_ref, a.voxel)
     for src_name, ref_name in pairs:
         src, ref = clouds[src_name], clouds[ref_name]
         gt = poses_io.relative_motion(truth, src_name, ref_name)
@@ -54,7 +56,8 @@ def main() -> None:
                    "rpmnet_auto_samples": lambda: pair.to_callers_units(alignment.align(
                        s6[:, :3], r6[:, :3], s6[:, 3:], r6[:, 3:], params=params).transform[:3]),
                    "ransac_icp": lambda: pair.to_callers_units(np.asarray(ransac(pair.src6, pair.ref6))[0, -1]),
-                   "open3d_scan_pair": lambda: baselines.open3d_scan_pair(src, ref, a.voxel)}
+                   "open3d_scan_pair": lambda: baselines.open3d_scan_pair(src, ref, a.voxel),
+                   "kiss_small_gicp": lambda: baselines.kiss_small_gicp_pair(src, ref, a.voxel)}
         record = {"task": "bunny_pair", "pair": f"{src_name}:{ref_name}"}
         for name, fn in methods.items():
             seconds = []
