@@ -173,6 +173,7 @@ def main(argv=None) -> None:
     p.add_argument("--max-scans", type=int, default=10, help="scans per scan set (evenly spaced in the part)")
     p.add_argument("--out-jsonl", default=None)
     p.add_argument("--out-md", default=None)
+    p.add_argument("--table-from", default=None, help="only print (and --out-md) the table of this JSON-lines file")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--set", help=argparse.SUPPRESS)
     p.add_argument("--task", help=argparse.SUPPRESS)
@@ -180,6 +181,13 @@ def main(argv=None) -> None:
     a = p.parse_args(argv)
     if a.worker:
         return worker(a)
+    if a.table_from:
+        with open(a.table_from) as f:
+            records = [json.loads(line) for line in f if line.strip()]
+        if a.out_md:
+            with open(a.out_md, "w") as f:
+                f.write(table(records))
+        return print(table(records))
     names = a.sets.split(",") if a.sets else sets.available() + [
         n + "@grid" for n in sets.available() if sets.kind(n) == sets.GEOREFERENCED_FROM]
     if not names:

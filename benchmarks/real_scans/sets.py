@@ -17,10 +17,10 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 DATA = os.path.join(HERE, "data")
 
-# The georeferenced set (kind d): a real set moved into a national grid (UTM zone 32N-like easting/northing,
-# metres). Each scan keeps its own orientation (unknown heading, as a levelled scanner with GNSS but no
-# compass) and is placed at its true position in the grid: its points are ``p + GRID_ORIGIN + t`` with ``t``
-# the scan's true position. The coordinates are ~4.1e6 m from the origin: float32 keeps 0.5 m there.
+# The georeferenced set (kind d): a real set moved into a national grid (UTM-like easting, northing, height in
+# metres): every scan's own frame is shifted by GRID_ORIGIN, so the relative motions are the local set's and only
+# the coordinates change (~4.1e6 m from the origin, where float32 keeps 0.5 m): a method that is right near the
+# origin and wrong here loses precision or linearises about the origin.
 GRID_ORIGIN = np.array([512_000.0, 4_100_000.0, 120.0])
 GEOREFERENCED_FROM = "outdoor_lidar"  # the kind whose set is moved into the grid
 # The voxel each kind gets, as the tools' documentation sets it for such data; every tool gets the same one.
@@ -82,22 +82,16 @@ def load(name: str, part: str) -> ScanSet:
 
 
 def georeferenced(s: ScanSet) -> ScanSet:
-    """``s`` moved into the national grid: scan ``i`` holds ``p + GRID_ORIGIN + t_i`` (``t_i`` its true
-    position); its pose becomes ``C_i P_i C_i⁻¹``-like: grid point ``q`` ↦ ``R_i (q - c_i) + c_i`` with
-    ``c_i = GRID_ORIGIN + t_i``, so the common frame is the grid."""
-    clouds, poses, origins = [], [], []
-    for points, pose in zip(s.clouds, s.poses):
-        centre = GRID_ORIGIN + pose[:3, 3]
-        clouds.append(points + centre)
-        origins.append(centre)
-        grid = np.eye(4)
-        grid[:3, :3] = pose[:3, :3]
-        grid[:3, 3] = centre - pose[:3, :3] @ centre
-        poses.append(grid)
-    poses = np.stack(poses)
+    """``s`` moved into the national grid: every scan holds ``p + GRID_ORIGIN``; the poses become
+    ``G P G⁻¹`` (``G`` the shift), so the motion between any two scans is the same rigid motion written in grid
+    coordinates, and each scan's sensor sits at ``GRID_ORIGIN``."""
+    grid = np.eye(4)
+    grid[:3, 3] = GRID_ORIGIN
+    clouds = [points + GRID_ORIGIN for points in s.clouds]
+    poses = grid @ s.poses @ np.linalg.inv(grid)
     meta = dict(s.meta, kind="georeferenced", georeferenced_from=s.name)
     return ScanSet(s.name + "@grid", "georeferenced", s.names, clouds, poses, s.voxel, _extent(clouds, poses), meta,
-                   np.array(origins))
+                   np.tile(GRID_ORIGIN, (len(clouds), 1)))
 
 
 def subset(s: ScanSet, keep) -> ScanSet:
