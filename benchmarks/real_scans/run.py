@@ -18,10 +18,13 @@ indoor RGB-D frames, an outdoor LiDAR sequence) and the LiDAR set moved into a n
 Every anchor gets the voxel its documentation gives for that kind of data (``sets.VOXEL``); ``rpmnet_jax``
 gets no size at all (its defaults). On the national-grid set the anchors get the clouds shifted by one
 point of the reference (a viewer's "global shift", which float32 tools and small_gicp's 21-bit voxel keys need;
-restored after), ``rpmnet_jax`` the grid coordinates as they are.
+restored after), ``rpmnet_jax`` the grid coordinates as they are. Where the scans are in their sensors' frames
+(RGB-D frames, LiDAR sweeps), Open3D's normals are turned toward the sensor.
 
 Each (set, task, method) runs in a process of its own (peak memory is that process's; the JAX-based method
-pays its imports and one warm-up registration on the tune part before the clock). One JSON line per run with
+pays its imports before the clock; every method registers the tune part's first pair before the clock, ours also
+every compilation ``align`` can meet: classical, network and global search). Each record names the commit, the
+libraries' versions and the machine. One JSON line per run with
 the per-pair errors and times; ``--out-md`` writes the table.
 
     python benchmarks/real_scans/run.py [--part report] [--sets happy_stand,...] [--max-pairs 12] \\
@@ -53,40 +56,47 @@ MAX_ROTATION_DEG = 5.0
 MAX_TRANSLATION_SHARE = 0.02
 
 
-def _shifted(method, shift):
-    """``method(src, ref) -> (4, 4)`` run on clouds moved by ``-shift``, its answer moved back."""
-    def run(src, ref):
+def shifted(method, shift):
+    """``method(src, ref, sensors) -> (4, 4)`` run on clouds (and sensors) moved by ``-shift (3,)``, its answer
+    moved back: a viewer's "global shift"."""
+    def run(src, ref, sensors):
         to_local = np.eye(4)
         to_local[:3, 3] = -shift
-        return np.linalg.inv(to_local) @ method(src - shift, ref - shift) @ to_local
+        local = None if sensors is None else [v - shift for v in sensors]
+        return np.linalg.inv(to_local) @ method(src - shift, ref - shift, local) @ to_local
     return run
 
 
 def pair_method(name: str, s: sets.ScanSet):
-    """``register(src (N, 3), ref (M, 3)) -> (4, 4)`` for method ``name`` on set ``s``."""
+    """``register(src (N, 3), ref (M, 3), sensors) -> (4, 4)`` for method ``name`` on set ``s``; ``sensors``:
+    the two scans' sensor positions when they are known, else None (only Open3D's recipe uses them: its normals
+    are turned toward the sensor)."""
     from rpmnet_jax.evaluation import baselines
     if name == "rpmnet_jax":
         import rpmnet_jax
-        return lambda src, ref: rpmnet_jax.align(src, ref).transform
-    method = {"open3d": lambda src, ref: baselines.open3d_scan_pair(src, ref, s.voxel),
-              "kiss_small_gicp": lambda src, ref: baselines.kiss_small_gicp_pair(src, ref, s.voxel)}[name]
-    return method if s.kind != "georeferenced" else lambda src, ref: _shifted(method, ref[0].copy())(src, ref)
+        return lambda src, ref, sensors: rpmnet_jax.align(src, ref).transform
+    method = {"open3d": lambda src, ref, sensors: baselines.open3d_scan_pair(src, ref, s.voxel, viewpoints=sensors),
+              "kiss_small_gicp": lambda src, ref, sensors: baselines.kiss_small_gicp_pair(src, ref, s.voxel)}[name]
+    return method if s.kind != "georeferenced" else lambda src, ref, sensors: shifted(method, ref[0].copy())(
+        src, ref, sensors)
 
 
 def run_pairs(s: sets.ScanSet, method: str, max_pairs: int, warm: sets.ScanSet) -> dict:
     """Registers the set's pairs as captured and turned; per pair the errors and seconds."""
     register = pair_method(method, s)
-    register(warm.clouds[0], warm.clouds[1])  # compilation and first-call costs, on the tune part
+    if method == "rpmnet_jax":  # every compilation align can meet (classical, network, global search)
+        bench_utils.warm_align(warm.clouds[0], warm.clouds[1])
+    register(warm.clouds[0], warm.clouds[1], None)  # first-call costs, on the tune part
     rows = []
     for k, (a, b) in enumerate(sets.pairs(s, max_pairs)):
         truth = np.linalg.inv(s.poses[b]) @ s.poses[a]
         for mode in ("captured", "turned"):
             src, motion = (s.clouds[a], np.eye(4)) if mode == "captured" else sets.turn(s.clouds[a], seed=k)
+            origin = motion[:3, :3] @ s.origins[a] + motion[:3, 3]  # the source frame's origin, as given
             t0 = time.perf_counter()
-            estimate = register(src, s.clouds[b])
+            estimate = register(src, s.clouds[b], (origin, s.origins[b]) if s.sensors else None)
             seconds = time.perf_counter() - t0
-            sensor = motion[:3, :3] @ s.origins[a] + motion[:3, 3]  # the source's sensor, as given
-            rot, trans = sets.errors(estimate, truth @ np.linalg.inv(motion), sensor)
+            rot, trans = sets.errors(estimate, truth @ np.linalg.inv(motion), origin)
             rows.append({"pair": [s.names[a], s.names[b]], "mode": mode, "rotation_deg": rot,
                          "translation": trans, "seconds": seconds})
     return {"rows": rows}
@@ -142,9 +152,30 @@ def worker(a) -> None:
     result = (run_pairs(s, a.method, a.max_pairs, warm) if a.task == "pairs" else run_scans(s, a.method, warm))
     record = {"set": s.name, "kind": s.kind, "part": a.part, "task": a.task, "method": a.method,
               "scans": len(s.names), "voxel": s.voxel, "extent": s.extent, **result,
-              "peak_rss_mb": bench_utils.peak_rss_mb()}
+              "peak_rss_mb": bench_utils.peak_rss_mb(), "commit": _commit(), "versions": _versions(a.method),
+              **bench_utils.environment()}
     record["summary"] = summary(record)
     print(json.dumps(record), flush=True)
+
+
+def _commit() -> str:
+    """The checkout's commit (``+`` when tracked files differ from it), or ``"unknown"``."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True,
+                              cwd=HERE).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                               text=True, cwd=HERE).stdout.strip()
+        return head + ("+" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def _versions(method: str) -> dict:
+    """Versions of the libraries this method ran."""
+    from importlib import metadata
+    names = {"rpmnet_jax": ["jax"], "rpmnet_jax_scans": ["jax"], "open3d": ["open3d"], "open3d_multiway": ["open3d"],
+             "kiss_small_gicp": ["kiss_matcher", "small_gicp"]}[method]
+    return {n: metadata.version(n) for n in ["numpy", *names]}
 
 
 def table(records: list) -> str:

@@ -19,7 +19,7 @@ DATA = os.path.join(HERE, "data")
 
 # The georeferenced set (kind d): a real set moved into a national grid (UTM-like easting, northing, height in
 # metres): every scan's own frame is shifted by GRID_ORIGIN, so the relative motions are the local set's and only
-# the coordinates change (~4.1e6 m from the origin, where float32 keeps 0.5 m): a method that is right near the
+# the coordinates change (~4.1e6 m from the origin, where float32 keeps 0.25 m): a method that is right near the
 # origin and wrong here loses precision or linearises about the origin.
 GRID_ORIGIN = np.array([512_000.0, 4_100_000.0, 120.0])
 GEOREFERENCED_FROM = "outdoor_lidar"  # the kind whose set is moved into the grid
@@ -29,6 +29,9 @@ VOXEL = {
     "indoor": 0.05,  # Open3D's registration tutorials on RGB-D fragments of rooms
     "outdoor_lidar": 0.3,  # KISS-Matcher's default resolution (KITTI), small_gicp's 0.25 m example
 }
+# Whether a kind's scans are stored in their sensor's frame (the sensor at the frame's origin): the RGB-D frames
+# and LiDAR sweeps are; the Stanford range scans' frame origin is the turntable, not the scanner.
+SENSOR_AT_ORIGIN = {"object": False, "indoor": True, "outdoor_lidar": True}
 OVERLAP_DISTANCE = 3.0  # × voxel: a point of one scan overlaps the other if it has a point this near (truth)
 MIN_OVERLAP = 0.3  # pairs whose overlap (share of the source's points, at the true poses) is at least this
 
@@ -44,7 +47,8 @@ class ScanSet:
     voxel: float  # the voxel the tools' documentation gives for this kind of data (VOXEL)
     extent: float  # diagonal of the part's bounding box in the common frame (success: translation < 2 %)
     meta: dict
-    origins: np.ndarray  # (S, 3): each scan's sensor position in its own file's coordinates (errors are taken there)
+    origins: np.ndarray  # (S, 3): each scan's frame origin in its file's coordinates (errors are taken there)
+    sensors: bool  # whether the origins are the sensor positions (normals can be turned toward them)
 
 
 def available() -> list:
@@ -78,7 +82,7 @@ def load(name: str, part: str) -> ScanSet:
     clouds = [np.asarray(clouds_io.read_cloud(os.path.join(folder, files[n]))[0], np.float64) for n in names]
     poses = np.stack([truth[n] for n in names])
     return ScanSet(name, meta["kind"], names, clouds, poses, VOXEL[meta["kind"]], _extent(clouds, poses), meta,
-                   np.zeros((len(names), 3)))
+                   np.zeros((len(names), 3)), SENSOR_AT_ORIGIN[meta["kind"]])
 
 
 def georeferenced(s: ScanSet) -> ScanSet:
@@ -91,7 +95,7 @@ def georeferenced(s: ScanSet) -> ScanSet:
     poses = grid @ s.poses @ np.linalg.inv(grid)
     meta = dict(s.meta, kind="georeferenced", georeferenced_from=s.name)
     return ScanSet(s.name + "@grid", "georeferenced", s.names, clouds, poses, s.voxel, _extent(clouds, poses), meta,
-                   np.tile(GRID_ORIGIN, (len(clouds), 1)))
+                   s.origins + GRID_ORIGIN, s.sensors)
 
 
 def subset(s: ScanSet, keep) -> ScanSet:
@@ -130,7 +134,7 @@ def pairs(s: ScanSet, max_pairs: int, seed: int = 0) -> list:
 def errors(estimate, truth, at) -> tuple:
     """``(rotation error °, translation error)`` of ``estimate (4, 4)`` against ``truth (4, 4)`` (both map a
     source onto a reference), the translation error being the displacement of the source's point ``at (3,)``
-    (its sensor position): the same numbers whether the clouds sit near the origin or in a national grid."""
+    (its frame's origin): the same numbers whether the clouds sit near the origin or in a national grid."""
     from rpmnet_jax import metrics
     shift = np.eye(4)
     shift[:3, 3] = at

@@ -151,16 +151,19 @@ def global_then_icp(src, ref, start: str, radius: float = 0.3, max_nn: int = 128
     return np.stack(out).astype(np.float32)
 
 
-def open3d_scan_pair(src, ref, voxel_size: float, seed: int = 0) -> np.ndarray:
+def open3d_scan_pair(src, ref, voxel_size: float, seed: int = 0, viewpoints=None) -> np.ndarray:
     """Open3D's recipe for one pair of scans ``src (N, 3)`` onto ``ref (M, 3)`` (caller's units): voxel
-    downsampling first, normals (radius ``2 × voxel``), FPFH (radius ``5 × voxel``), RANSAC on feature matches
-    (distance ``1.5 × voxel``), then Tukey point-to-plane ICP (threshold ``1.5 × voxel``) → ``(4, 4)``."""
+    downsampling first, normals (radius ``2 × voxel``; turned toward each scan's sensor when ``viewpoints`` gives
+    the two sensor positions ``(3,)``, in each scan's coordinates), FPFH (radius ``5 × voxel``), RANSAC on feature
+    matches (distance ``1.5 × voxel``), then Tukey point-to-plane ICP (threshold ``1.5 × voxel``) → ``(4, 4)``."""
     import open3d as o3d
     o3d.utility.random.seed(seed)
     downs, feats = [], []
-    for points in (src, ref):
+    for k, points in enumerate((src, ref)):
         pc = _o3d_cloud(np.asarray(points, np.float64)).voxel_down_sample(voxel_size)
         pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel_size, max_nn=30))
+        if viewpoints is not None:
+            pc.orient_normals_towards_camera_location(np.asarray(viewpoints[k], np.float64))
         downs.append(pc)
         feats.append(_fpfh(pc, 5 * voxel_size, 100))
     init = _ransac_pair(downs[0], downs[1], feats[0], feats[1], 1.5 * voxel_size)
