@@ -31,15 +31,13 @@ byte the same.
 
 from __future__ import annotations
 
-import argparse
 import io
-import json
-import os
-import subprocess
+import itertools
 import sys
-import zlib
 
 import numpy as np
+
+import build_common as common
 
 SET_NAME = "tum_fr1_desk"
 SOURCE_URL = "https://github.com/gaoxiang12/slambook"
@@ -147,27 +145,9 @@ CHECK = {"within2": "89.1-99.9% (mean 96.6%)", "within3": "94.2-100.0%", "median
          "identity2": "6.4-99.0% (mean 39.0%)", "fr1_2": "87.7-99.9% (mean 96.2%)"}
 
 
-def _git_show(source: str, path: str) -> bytes | None:
-    """The bytes of ``path`` at ``SOURCE_COMMIT`` in the git repository ``source``; None if ``source`` is not one."""
-    try:
-        done = subprocess.run(["git", "-C", source, "show", f"{SOURCE_COMMIT}:{path}"], capture_output=True,
-                              check=False)
-    except OSError:
-        return None
-    return done.stdout if done.returncode == 0 else None
-
-
 def read_source(source: str, name: str) -> bytes:
     """The bytes of ``SOURCE_DIR/name`` at ``SOURCE_COMMIT`` (git), or from a checked-out ``source`` folder."""
-    path = f"{SOURCE_DIR}/{name}"
-    data = _git_show(source, path)
-    if data is not None:
-        return data
-    local = os.path.join(source, *path.split("/"))
-    if os.path.isfile(local):
-        with open(local, "rb") as f:
-            return f.read()
-    raise OSError(f"{source}: no {path} at commit {SOURCE_COMMIT} (a full clone of {SOURCE_URL} is needed)")
+    return common.read_source(source, SOURCE_COMMIT, f"{SOURCE_DIR}/{name}", SOURCE_URL)
 
 
 def read_groundtruth(text: str) -> np.ndarray:
@@ -217,23 +197,7 @@ def back_project(depth: np.ndarray, intrinsics=INTRINSICS) -> np.ndarray:
 
 def thin(points: np.ndarray, name: str) -> np.ndarray:
     """The rows kept for frame ``name``: the first of each occupied voxel, then at most ``MAX_POINTS``."""
-    cells = np.floor(points / VOXEL).astype(np.int64)
-    _, first = np.unique(cells, axis=0, return_index=True)
-    points = points[np.sort(first)]
-    if len(points) > MAX_POINTS:
-        rng = np.random.default_rng([SEED, zlib.crc32(name.encode("ascii"))])
-        points = points[np.sort(rng.choice(len(points), MAX_POINTS, replace=False))]
-    return points
-
-
-def write_binary_ply(path: str, points: np.ndarray) -> None:
-    """Binary little-endian PLY with one ``vertex`` element of float32 ``x y z``."""
-    points = np.ascontiguousarray(points, dtype="<f4")
-    header = ("ply\nformat binary_little_endian 1.0\n"
-              f"element vertex {len(points)}\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(points.tobytes())
+    return common.subsample(common.first_per_voxel(points, VOXEL), name, MAX_POINTS, SEED)
 
 
 def frame_poses(source: str) -> np.ndarray:
@@ -260,32 +224,18 @@ def _range(values, fmt):
 
 
 def build(source: str, out: str) -> dict:
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
-    from rpmnet_jax.io import poses as poses_io
-
+    """Writes the set into ``out`` from the clone ``source``; ``{frame: (source points, kept points)}``."""
     poses = frame_poses(source)
-    os.makedirs(out, exist_ok=True)
-    counts, kept_all, depth_range = {}, [], [np.inf, -np.inf]
-    for stamp, name in zip(STAMPS, NAMES):
-        points = back_project(read_depth(read_source(source, f"depth/{stamp}.png")))
-        depth_range = [min(depth_range[0], points[:, 2].min()), max(depth_range[1], points[:, 2].max())]
-        kept = thin(points, name)
-        write_binary_ply(os.path.join(out, name + ".ply"), kept)
-        counts[name] = (len(points), len(kept))
-        kept_all.append(kept)
-    poses_io.write_poses(os.path.join(out, "poses.conf"), [n + ".ply" for n in NAMES], poses)
+    frames = [back_project(read_depth(read_source(source, f"depth/{stamp}.png"))) for stamp in STAMPS]
+    kept = [thin(points, name) for name, points in zip(NAMES, frames)]
+    counts = common.write_scans(out, NAMES, frames, kept)
+    depth_range = min(p[:, 2].min() for p in frames), max(p[:, 2].max() for p in frames)
     (travel, turn), steps = _motion(poses)
-    world = np.concatenate([k @ p[:3, :3].T + p[:3, 3] for k, p in zip(kept_all, poses)])
+    world = np.concatenate([common.posed(k, p) for k, p in zip(kept, poses)])
     size = world.max(axis=0) - world.min(axis=0)
     fx, fy, cx, cy = INTRINSICS
     meta = {
-        "name": SET_NAME,
-        "kind": "indoor",
-        "source_url": SOURCE_URL,
-        "source_commit": SOURCE_COMMIT,
-        "source_path": SOURCE_DIR,
-        "licence": LICENCE,
-        "units": "m",
+        **common.source_meta(SET_NAME, "indoor", SOURCE_URL, SOURCE_COMMIT, SOURCE_DIR, LICENCE),
         "sensor": SENSOR,
         "tune": TUNE,
         "report": REPORT,
@@ -297,21 +247,13 @@ def build(source: str, out: str) -> dict:
         "seed": SEED,
         "source_points": {n: c[0] for n, c in counts.items()},
     }
-    with open(os.path.join(out, "meta.json"), "w") as f:
-        json.dump(meta, f, indent=2)
-        f.write("\n")
-    source_points = [c[0] for c in counts.values()]
-    kept_points = [c[1] for c in counts.values()]
-    with open(os.path.join(out, "SOURCE.md"), "w") as f:
-        f.write(SOURCE_MD.format(
-            url=SOURCE_URL, commit=SOURCE_COMMIT, path=SOURCE_DIR, sensor=SENSOR, count=len(NAMES),
-            span=float(STAMPS[-1]) - float(STAMPS[0]), tune=", ".join(TUNE), report=", ".join(REPORT),
-            travel_cm=100 * travel, turn=turn, step_cm=100 * steps[:, 0].min(), step_max_cm=100 * steps[:, 0].max(),
-            step_deg=steps[:, 1].min(), step_max_deg=steps[:, 1].max(), scale=DEPTH_SCALE, fx=fx, fy=fy, cx=cx,
-            cy=cy, voxel=VOXEL, max_points=f"{MAX_POINTS:,}", seed=SEED,
-            source_points=_range(source_points, "{:,}"), kept_points=_range(kept_points, "{:,}"),
-            depth_range=f"{depth_range[0]:.2f}-{depth_range[1]:.2f}",
-            extent=" x ".join(f"{s:.2f}" for s in size) + " m", diagonal=float(np.linalg.norm(size)), **CHECK))
+    common.write_set_files(
+        out, NAMES, poses, meta, SOURCE_MD, sensor=SENSOR, span=float(STAMPS[-1]) - float(STAMPS[0]),
+        travel_cm=100 * travel, turn=turn, step_cm=100 * steps[:, 0].min(), step_max_cm=100 * steps[:, 0].max(),
+        step_deg=steps[:, 1].min(), step_max_deg=steps[:, 1].max(), scale=DEPTH_SCALE, fx=fx, fy=fy, cx=cx, cy=cy,
+        voxel=VOXEL, max_points=f"{MAX_POINTS:,}", source_points=_range([len(p) for p in frames], "{:,}"),
+        kept_points=_range([len(k) for k in kept], "{:,}"), depth_range=f"{depth_range[0]:.2f}-{depth_range[1]:.2f}",
+        extent=" x ".join(f"{s:.2f}" for s in size) + " m", diagonal=float(np.linalg.norm(size)), **CHECK)
     return counts
 
 
@@ -321,42 +263,31 @@ def check(source: str, out: str) -> None:
     calibrated freiburg1 colour intrinsics."""
     from scipy.spatial import cKDTree
 
-    from rpmnet_jax.io import clouds as clouds_io
-
     poses = frame_poses(source)
     depths = [read_depth(read_source(source, f"depth/{s}.png")) for s in STAMPS]
     full = [back_project(d) for d in depths]
     fr1 = [back_project(d, (517.3, 516.5, 318.6, 255.3)) for d in depths]
-    kept = [np.asarray(clouds_io.read_cloud(os.path.join(out, n + ".ply"))[0], np.float64) for n in NAMES]
+    kept = [common.read_written(out, n) for n in NAMES]
+    identity, inverted = np.tile(np.eye(4), (len(poses), 1, 1)), np.linalg.inv(poses)
 
-    def posed(points, pose):
-        return points @ pose[:3, :3].T + pose[:3, 3]
+    def near(clouds, pose, i, j):
+        """Distances (up to 0.1 m) from the points of ``clouds[i]`` to ``clouds[j]``, both posed by ``pose``."""
+        a, b = common.posed(clouds[i], pose[i]), common.posed(clouds[j], pose[j])
+        return cKDTree(b).query(a, distance_upper_bound=0.1)[0]
 
-    def near(a, b, limit=0.1):
-        dist, _ = cKDTree(b).query(a, distance_upper_bound=limit)
-        return dist
-
-    identity = np.tile(np.eye(4), (len(poses), 1, 1))
-    inverted = np.linalg.inv(poses)
     rows = []
-    for i in range(len(NAMES)):
-        for j in range(i + 1, len(NAMES)):
-            d = near(posed(full[i], poses[i]), posed(full[j], poses[j]))
-            dk = near(posed(kept[i], poses[i]), posed(kept[j], poses[j]))
-            di = near(posed(full[i], inverted[i]), posed(full[j], inverted[j]))
-            d0 = near(posed(full[i], identity[i]), posed(full[j], identity[j]))
-            df = near(posed(fr1[i], poses[i]), posed(fr1[j], poses[j]))
-            row = (np.mean(d < 0.02), np.mean(d < 0.03), np.median(d), np.mean(dk < 0.02), np.mean(dk < 0.03),
-                   np.mean(di < 0.02), np.mean(d0 < 0.02), np.mean(df < 0.02))
-            rows.append(row)
-            print(f"{NAMES[i]} -> {NAMES[j]}: <2 cm {row[0]:.1%}, <3 cm {row[1]:.1%}, median NN "
-                  f"{1000 * row[2]:.1f} mm; thinned <2 cm {row[3]:.1%}, <3 cm {row[4]:.1%} | inverted <2 cm "
-                  f"{row[5]:.1%} | identity <2 cm {row[6]:.1%} | fr1 intrinsics <2 cm {row[7]:.1%}")
-    table = np.array(rows)
-    for k, label in enumerate(("within 2 cm", "within 3 cm", "median NN (m)", "thinned: within 2 cm",
-                               "thinned: within 3 cm", "inverted: within 2 cm", "identity: within 2 cm",
-                               "fr1 intrinsics: within 2 cm")):
-        print(f"{label:>28}: {table[:, k].min():.4f} - {table[:, k].max():.4f} (mean {table[:, k].mean():.4f})")
+    for i, j in itertools.combinations(range(len(NAMES)), 2):
+        d, dk, di, d0, df = (near(clouds, pose, i, j) for clouds, pose in
+                             ((full, poses), (kept, poses), (full, inverted), (full, identity), (fr1, poses)))
+        row = (np.mean(d < 0.02), np.mean(d < 0.03), np.median(d), np.mean(dk < 0.02), np.mean(dk < 0.03),
+               np.mean(di < 0.02), np.mean(d0 < 0.02), np.mean(df < 0.02))
+        rows.append(row)
+        print(f"{NAMES[i]} -> {NAMES[j]}: <2 cm {row[0]:.1%}, <3 cm {row[1]:.1%}, median NN "
+              f"{1000 * row[2]:.1f} mm; thinned <2 cm {row[3]:.1%}, <3 cm {row[4]:.1%} | inverted <2 cm "
+              f"{row[5]:.1%} | identity <2 cm {row[6]:.1%} | fr1 intrinsics <2 cm {row[7]:.1%}")
+    common.print_columns(rows, ("within 2 cm", "within 3 cm", "median NN (m)", "thinned: within 2 cm",
+                                "thinned: within 3 cm", "inverted: within 2 cm", "identity: within 2 cm",
+                                "fr1 intrinsics: within 2 cm"), width=28, digits=4, mean=True)
     (travel, turn), steps = _motion(poses)
     print(f"first -> last frame: {100 * travel:.1f} cm, {turn:.1f} deg; consecutive: "
           f"{100 * steps[:, 0].min():.1f}-{100 * steps[:, 0].max():.1f} cm, "
@@ -364,25 +295,8 @@ def check(source: str, out: str) -> None:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--source", required=True,
-                   help="local clone of " + SOURCE_URL + " (full history: commit " + SOURCE_COMMIT + ")")
-    p.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", SET_NAME),
-                   help="output folder (default: benchmarks/real_scans/data/tum_fr1_desk)")
-    p.add_argument("--check", action="store_true", help="also print the pose check (needs SciPy)")
-    a = p.parse_args(argv)
-    try:
-        counts = build(a.source, a.out)
-    except (ValueError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    for name, (n, k) in counts.items():
-        print(f"{name:<26} {n:>7} -> {k:>6} points")
-    print(f"wrote {len(counts)} frames, poses.conf, meta.json and SOURCE.md to {a.out}")
-    if a.check:
-        check(a.source, a.out)
-    return 0
+    return common.main(argv, __doc__, build, check, set_name=SET_NAME, noun="frames", width=26,
+                       source_help="local clone of " + SOURCE_URL + " (full history: commit " + SOURCE_COMMIT + ")")
 
 
 if __name__ == "__main__":

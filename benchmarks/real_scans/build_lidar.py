@@ -28,13 +28,12 @@ say where it all came from. Run it twice and the output is byte for byte the sam
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import sys
-import zlib
 
 import numpy as np
+
+import build_common as common
 
 SET_NAME = "kitti_04"
 SOURCE_URL = "https://github.com/AbdelazizHamadi/3D-scene-reconstruction-using-camera-Lidar-with-KITTI-dataset"
@@ -176,27 +175,15 @@ def read_sweep(path: str) -> np.ndarray:
     return data.reshape(-1, 4)[:, :3]
 
 
+def in_range(points: np.ndarray) -> np.ndarray:
+    """The rows of ``points (N, 3)`` between ``MIN_RANGE`` and ``MAX_RANGE`` of the sensor, in order."""
+    ranges = np.linalg.norm(points.astype(np.float64), axis=1)
+    return points[(ranges >= MIN_RANGE) & (ranges <= MAX_RANGE)]
+
+
 def thin(points: np.ndarray, name: str) -> np.ndarray:
     """The rows kept for sweep ``name``: in range, the first of each occupied voxel, at most ``MAX_POINTS``."""
-    ranges = np.linalg.norm(points.astype(np.float64), axis=1)
-    points = points[(ranges >= MIN_RANGE) & (ranges <= MAX_RANGE)]
-    cells = np.floor(points.astype(np.float64) / VOXEL).astype(np.int64)
-    _, first = np.unique(cells, axis=0, return_index=True)
-    points = points[np.sort(first)]
-    if len(points) > MAX_POINTS:
-        rng = np.random.default_rng([SEED, zlib.crc32(name.encode("ascii"))])
-        points = points[np.sort(rng.choice(len(points), MAX_POINTS, replace=False))]
-    return points
-
-
-def write_binary_ply(path: str, points: np.ndarray) -> None:
-    """Binary little-endian PLY with one ``vertex`` element of float32 ``x y z``."""
-    points = np.ascontiguousarray(points, dtype="<f4")
-    header = ("ply\nformat binary_little_endian 1.0\n"
-              f"element vertex {len(points)}\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(points.tobytes())
+    return common.subsample(common.first_per_voxel(in_range(points), VOXEL), name, MAX_POINTS, SEED)
 
 
 def sweep_poses(source: str, variant: str = "velodyne") -> np.ndarray:
@@ -216,30 +203,17 @@ def sweep_poses(source: str, variant: str = "velodyne") -> np.ndarray:
 
 
 def build(source: str, out: str) -> dict:
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
-    from rpmnet_jax.io import poses as poses_io
-
+    """Writes the set into ``out`` from the work tree ``source``; ``{sweep: (source points, kept points)}``."""
     velodyne = os.path.join(source, SOURCE_DIR, "sequences", SEQUENCE, "velodyne")
     poses = sweep_poses(source)
-    os.makedirs(out, exist_ok=True)
-    counts = {}
-    for frame, name in zip(FRAMES, NAMES):
-        points = read_sweep(os.path.join(velodyne, f"{frame:06d}.bin"))
+    sweeps = [read_sweep(os.path.join(velodyne, f"{frame:06d}.bin")) for frame in FRAMES]
+    for name, points in zip(NAMES, sweeps):
         if not np.all(np.isfinite(points)):
             raise ValueError(f"{name}: non-finite points")
-        kept = thin(points, name)
-        write_binary_ply(os.path.join(out, name + ".ply"), kept)
-        counts[name] = (len(points), len(kept))
-    poses_io.write_poses(os.path.join(out, "poses.conf"), [n + ".ply" for n in NAMES], poses)
+    counts = common.write_scans(out, NAMES, sweeps, [thin(points, name) for name, points in zip(NAMES, sweeps)])
     travel = float(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1).sum())
     meta = {
-        "name": SET_NAME,
-        "kind": "outdoor_lidar",
-        "source_url": SOURCE_URL,
-        "source_commit": SOURCE_COMMIT,
-        "source_path": SOURCE_DIR,
-        "licence": LICENCE,
-        "units": "m",
+        **common.source_meta(SET_NAME, "outdoor_lidar", SOURCE_URL, SOURCE_COMMIT, SOURCE_DIR, LICENCE),
         "sensor": SENSOR,
         "tune": TUNE,
         "report": REPORT,
@@ -251,15 +225,9 @@ def build(source: str, out: str) -> dict:
         "seed": SEED,
         "source_points": {n: c[0] for n, c in counts.items()},
     }
-    with open(os.path.join(out, "meta.json"), "w") as f:
-        json.dump(meta, f, indent=2)
-        f.write("\n")
-    with open(os.path.join(out, "SOURCE.md"), "w") as f:
-        f.write(SOURCE_MD.format(url=SOURCE_URL, commit=SOURCE_COMMIT, path=SOURCE_DIR, sensor=SENSOR,
-                                 count=len(NAMES), first=NAMES[0], last=NAMES[-1], travel=travel,
-                                 tune=", ".join(TUNE), report=", ".join(REPORT), min_range=MIN_RANGE,
-                                 max_range=MAX_RANGE, voxel=VOXEL, max_points=f"{MAX_POINTS:,}", seed=SEED,
-                                 **CHECK))
+    common.write_set_files(out, NAMES, poses, meta, SOURCE_MD, sensor=SENSOR, first=NAMES[0], last=NAMES[-1],
+                           travel=travel, min_range=MIN_RANGE, max_range=MAX_RANGE, voxel=VOXEL,
+                           max_points=f"{MAX_POINTS:,}", **CHECK)
     return counts
 
 
@@ -283,26 +251,20 @@ def _plane_residuals(a: np.ndarray, b: np.ndarray, near: float = 0.5, k: int = 1
 def check(source: str, out: str) -> None:
     """Prints the pose check of ``SOURCE.md``: each kept sweep against the next one, both posed, on the
     full-resolution sources (points in range) and on the thinned files."""
-    from rpmnet_jax.io import clouds as clouds_io
-
     poses = sweep_poses(source)
     swapped, camera = sweep_poses(source, "swapped"), sweep_poses(source, "camera")
     velodyne = os.path.join(source, SOURCE_DIR, "sequences", SEQUENCE, "velodyne")
+    posed = common.posed
 
-    def posed(points, pose):
-        return np.asarray(points, np.float64) @ pose[:3, :3].T + pose[:3, 3]
-
-    def in_range(frame):
-        points = read_sweep(os.path.join(velodyne, f"{frame:06d}.bin")).astype(np.float64)
-        ranges = np.linalg.norm(points, axis=1)
-        return points[(ranges >= MIN_RANGE) & (ranges <= MAX_RANGE)]
+    def full(frame):
+        return in_range(read_sweep(os.path.join(velodyne, f"{frame:06d}.bin")).astype(np.float64))
 
     rows = []
     for i in range(len(NAMES) - 1):
-        a, b = in_range(FRAMES[i]), in_range(FRAMES[i + 1])
+        a, b = full(FRAMES[i]), full(FRAMES[i + 1])
         hit, nn, plane, planar = _plane_residuals(posed(a, poses[i]), posed(b, poses[i + 1]))
         front = (a[:, 0] > 0)[hit][planar]  # ahead of the sensor in the first sweep's own frame
-        kept = [clouds_io.read_cloud(os.path.join(out, NAMES[j] + ".ply"))[0] for j in (i, i + 1)]
+        kept = [common.read_written(out, NAMES[j]) for j in (i, i + 1)]
         plane_kept = _plane_residuals(posed(kept[0], poses[i]), posed(kept[1], poses[i + 1]))[2]
         plane_swapped = _plane_residuals(posed(a, swapped[i]), posed(b, swapped[i + 1]))[2]
         hit_camera = _plane_residuals(posed(a, camera[i]), posed(b, camera[i + 1]), near=1.0)[0]
@@ -315,32 +277,15 @@ def check(source: str, out: str) -> None:
               f"{row[2]:.3f} m, point-to-plane median {row[3]:.3f} m (front {row[4]:.3f}, rear {row[5]:.3f}), "
               f"<5 cm {row[6]:.0%}; thinned files {row[7]:.3f} m | Tr swapped: {row[8]:.3f} m, <5 cm "
               f"{row[9]:.0%} | camera poses: within 1 m {row[10]:.0%}")
-    table = np.array(rows)
-    for k, name in enumerate(("step (m)", "within 0.5 m", "NN median (m)", "point-to-plane median (m)",
-                              "front half (m)", "rear half (m)", "within 5 cm", "thinned files (m)",
-                              "Tr swapped: p2plane (m)", "Tr swapped: within 5 cm", "camera poses: within 1 m")):
-        print(f"{name:>26}: {table[:, k].min():.3f} - {table[:, k].max():.3f}")
+    common.print_columns(rows, ("step (m)", "within 0.5 m", "NN median (m)", "point-to-plane median (m)",
+                                "front half (m)", "rear half (m)", "within 5 cm", "thinned files (m)",
+                                "Tr swapped: p2plane (m)", "Tr swapped: within 5 cm", "camera poses: within 1 m"),
+                         width=26, digits=3)
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--source", required=True, help="local clone of " + SOURCE_URL + " (at " + SOURCE_COMMIT + ")")
-    p.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", SET_NAME),
-                   help="output folder (default: benchmarks/real_scans/data/kitti_04)")
-    p.add_argument("--check", action="store_true", help="also print the pose check (needs SciPy)")
-    a = p.parse_args(argv)
-    try:
-        counts = build(a.source, a.out)
-    except (ValueError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    for name, (n, k) in counts.items():
-        print(f"{name:<16} {n:>7} -> {k:>6} points")
-    print(f"wrote {len(counts)} sweeps, poses.conf, meta.json and SOURCE.md to {a.out}")
-    if a.check:
-        check(a.source, a.out)
-    return 0
+    return common.main(argv, __doc__, build, check, set_name=SET_NAME, noun="sweeps", width=16,
+                       source_help="local clone of " + SOURCE_URL + " (at " + SOURCE_COMMIT + ")")
 
 
 if __name__ == "__main__":

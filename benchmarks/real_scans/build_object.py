@@ -24,13 +24,12 @@ byte the same.
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import sys
-import zlib
 
 import numpy as np
+
+import build_common as common
 
 SET_NAME = "happy_stand"
 SOURCE_URL = "https://github.com/thegyro/Project4-Scan-Matching"
@@ -155,53 +154,22 @@ def read_ascii_ply_vertices(path: str) -> np.ndarray:
     return values.reshape(count, 3).astype(np.float32)
 
 
-def write_binary_ply(path: str, points: np.ndarray) -> None:
-    """Binary little-endian PLY with one ``vertex`` element of float32 ``x y z``."""
-    points = np.ascontiguousarray(points, dtype="<f4")
-    header = ("ply\nformat binary_little_endian 1.0\n"
-              f"element vertex {len(points)}\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(points.tobytes())
-
-
-def subsample(points: np.ndarray, name: str) -> np.ndarray:
-    """At most ``MAX_POINTS`` rows, drawn without replacement (seed: ``SEED`` and the name), in file order."""
-    if len(points) <= MAX_POINTS:
-        return points
-    rng = np.random.default_rng([SEED, zlib.crc32(name.encode("ascii"))])
-    keep = np.sort(rng.choice(len(points), MAX_POINTS, replace=False))
-    return points[keep]
-
-
 def build(source: str, out: str) -> dict:
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
-    from rpmnet_jax.io import poses as poses_io
-
+    """Writes the set into ``out`` from the work tree ``source``; ``{scan: (source points, kept points)}``."""
     folder = os.path.join(source, SOURCE_DIR)
-    poses = poses_io.read_poses(os.path.join(folder, CONF))
+    poses = common.rpmnet_io("poses").read_poses(os.path.join(folder, CONF))
     names = TUNE + REPORT
     missing = [n for n in names if n not in poses]
     if missing:
         raise ValueError(f"{CONF} has no pose for {missing}")
-    os.makedirs(out, exist_ok=True)
-    counts = {}
-    for name in names:
-        points = read_ascii_ply_vertices(os.path.join(folder, name + ".ply"))
+    scans = [read_ascii_ply_vertices(os.path.join(folder, name + ".ply")) for name in names]
+    for name, points in zip(names, scans):
         if not np.all(np.isfinite(points)):
             raise ValueError(f"{name}: non-finite vertices")
-        kept = subsample(points, name)
-        write_binary_ply(os.path.join(out, name + ".ply"), kept)
-        counts[name] = (len(points), len(kept))
-    poses_io.write_poses(os.path.join(out, "poses.conf"), [n + ".ply" for n in names], [poses[n] for n in names])
+    kept = [common.subsample(points, name, MAX_POINTS, SEED) for name, points in zip(names, scans)]
+    counts = common.write_scans(out, names, scans, kept)
     meta = {
-        "name": SET_NAME,
-        "kind": "object",
-        "source_url": SOURCE_URL,
-        "source_commit": SOURCE_COMMIT,
-        "source_path": SOURCE_DIR,
-        "licence": LICENCE,
-        "units": "m",
+        **common.source_meta(SET_NAME, "object", SOURCE_URL, SOURCE_COMMIT, SOURCE_DIR, LICENCE),
         "scanner": SCANNER,
         "tune": TUNE,
         "report": REPORT,
@@ -209,32 +177,13 @@ def build(source: str, out: str) -> dict:
         "seed": SEED,
         "source_points": {n: c[0] for n, c in counts.items()},
     }
-    with open(os.path.join(out, "meta.json"), "w") as f:
-        json.dump(meta, f, indent=2)
-        f.write("\n")
-    with open(os.path.join(out, "SOURCE.md"), "w") as f:
-        f.write(SOURCE_MD.format(url=SOURCE_URL, commit=SOURCE_COMMIT, path=SOURCE_DIR, count=len(names),
-                                 tune=", ".join(TUNE), report=", ".join(REPORT), max_points=f"{MAX_POINTS:,}",
-                                 seed=SEED))
+    common.write_set_files(out, names, [poses[n] for n in names], meta, SOURCE_MD, max_points=f"{MAX_POINTS:,}")
     return counts
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--source", required=True, help="local clone of " + SOURCE_URL + " (at " + SOURCE_COMMIT + ")")
-    p.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", SET_NAME),
-                   help="output folder (default: benchmarks/real_scans/data/happy_stand)")
-    a = p.parse_args(argv)
-    try:
-        counts = build(a.source, a.out)
-    except (ValueError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    for name, (n, k) in counts.items():
-        print(f"{name:<22} {n:>7} -> {k:>6} points")
-    print(f"wrote {len(counts)} scans, poses.conf, meta.json and SOURCE.md to {a.out}")
-    return 0
+    return common.main(argv, __doc__, build, set_name=SET_NAME, noun="scans", width=22,
+                       source_help="local clone of " + SOURCE_URL + " (at " + SOURCE_COMMIT + ")")
 
 
 if __name__ == "__main__":
