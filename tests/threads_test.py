@@ -64,6 +64,23 @@ def test_worker_threads_are_limited_inside_and_the_setting_is_back_after():
     assert got["after"] == got["before"]
 
 
+def test_two_threads_calling_align_give_the_serial_answers():
+    import threading
+
+    from rpmnet_jax.pairwise import alignment
+
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(3000, 3))
+    ref = pts @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).T + 0.01
+    serial = alignment.align(pts, ref, init="classical").transform
+    got = {}
+    workers = [threading.Thread(target=lambda k=k: got.update({k: alignment.align(pts, ref, init="classical")
+                                                                .transform})) for k in range(2)]
+    [w.start() for w in workers]
+    [w.join(120) for w in workers]
+    assert sorted(got) == [0, 1] and all(np.array_equal(t, serial) for t in got.values())
+
+
 def test_align_runs_with_one_blas_thread(monkeypatch):
     """align's BLAS calls (FPFH's feature matching) see one thread; afterwards the caller's setting is back."""
     from rpmnet_jax.geometry import feature_ransac
