@@ -96,6 +96,7 @@ def test_candidates_file_holds_every_answer_exactly(tmp_path):
 
 
 @pytest.mark.parametrize("case,message", [("unknown_ext", "unknown point-cloud format"), ("missing", "no such file"),
+                                          ("missing_folder", "no such file or folder"),
                                           ("folder", "is a folder"), ("empty", "empty"),
                                           ("columns", "ambiguous"), ("garbage", "cannot read as PLY"),
                                           ("npz_names", "needs a 'points' array"),
@@ -104,6 +105,7 @@ def test_bad_files_are_one_line_cloud_errors(tmp_path, case, message):
     path = {
         "unknown_ext": lambda: tmp_path / "cloud.obj",
         "missing": lambda: tmp_path / "nope.ply",
+        "missing_folder": lambda: tmp_path / "scans",
         "folder": lambda: (tmp_path / "dir.ply").mkdir() or tmp_path / "dir.ply",
         "empty": lambda: np.save(tmp_path / "e.npy", np.zeros((0, 3))) or tmp_path / "e.npy",
         "columns": lambda: np.save(tmp_path / "c.npy", np.zeros((5, 5))) or tmp_path / "c.npy",
@@ -121,9 +123,12 @@ def test_bad_files_are_one_line_cloud_errors(tmp_path, case, message):
     assert isinstance(info.value, ValueError) and "\n" not in str(info.value)
 
 
-def test_check_format_names_the_extension():
+def test_check_format_names_the_extension(tmp_path):
     assert cloud_io.check_format("a/B.PLY") == ".ply"
     with pytest.raises(cloud_io.CloudError, match="'.obj'"):
         cloud_io.check_format("mesh.obj")
-    with pytest.raises(cloud_io.CloudError, match="none"):
-        cloud_io.check_format("cloud")
+    (tmp_path / "cloud").write_text("1 2 3\n")
+    with pytest.raises(cloud_io.CloudError, match="none"):  # a file without an extension
+        cloud_io.check_format(str(tmp_path / "cloud"))
+    with pytest.raises(cloud_io.CloudError, match="no such file or folder"):  # a missing folder of scans
+        cloud_io.check_format(str(tmp_path / "scans"))

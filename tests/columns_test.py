@@ -73,7 +73,8 @@ def test_columns_keyword_names_by_position(tmp_path):
     np.testing.assert_array_equal(cloud.colours, rgb)
     assert cloud.intensity is None
     points, normals = cloud_io.read_cloud(str(tmp_path / "rgb.xyz"), columns="_,_,_,x,y,z,intensity")
-    np.testing.assert_array_equal(points, rgb) and normals is None
+    np.testing.assert_array_equal(points, rgb)
+    assert normals is None
 
 
 @pytest.mark.parametrize("spec,match", [("x,y,z", "names 3 columns, the file has 7"), ("x,y,z,r,g,b,q", "unknown"),

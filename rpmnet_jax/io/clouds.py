@@ -22,6 +22,8 @@ CloudError = cols.CloudError
 def check_format(path: str) -> str:
     """The extension of ``path``; ``CloudError`` when unknown, or when its reader is not installed (LAS, E57)."""
     ext = os.path.splitext(path)[1].lower()
+    if not ext and not os.path.exists(path):  # a missing folder of scans, or a file without an extension
+        raise CloudError(f"{path}: no such file or folder")
     if ext not in FORMATS:
         raise CloudError(f"{path}: unknown point-cloud format {ext or '(none)'!r}; use one of {', '.join(FORMATS)}")
     if ext in (".las", ".laz"):
