@@ -48,12 +48,13 @@ def read(path: str, columns=None) -> cols.Cloud:
         dtype = np.dtype([(name, {"F": "f", "I": "i", "U": "u"}[t] + str(s), (c,) if c > 1 else ())
                           for name, s, t, c in zip(fields, sizes, types, counts)])
         data = np.frombuffer(body[: n * dtype.itemsize], dtype=dtype, count=n)
-        table = {name: data[name].astype(np.float64) for name in fields}
+        table = {name: data[name] if _packed_colour(name, c) else data[name].astype(np.float64)  # rgb: its bits
+                 for name, c in zip(fields, counts)}
     else:
         raise cols.CloudError(f"{path}: PCD DATA {kind!r} is not supported (ascii or binary)")
     names, values = [], []
     for name, size, typ, count in zip(fields, sizes, types, counts):
-        if name.lower() in ("rgb", "rgba") and count == 1:
+        if _packed_colour(name, count):
             names += ["red", "green", "blue"]
             values += _unpack_rgb(table[name], typ, size)
         elif count == 1:
@@ -64,6 +65,12 @@ def read(path: str, columns=None) -> cols.Cloud:
         else:
             raise cols.CloudError(f"{path}: --columns cannot name the {count}-value PCD field {name!r}")
     return cols.from_fields(path, names, values, columns)
+
+
+def _packed_colour(name: str, count: int) -> bool:
+    """Whether a field is PCL's packed colour (read as its raw bits: through float64, an alpha of 255 makes a red of
+    128–191 a signalling NaN, which the widening turns quiet, changing the red)."""
+    return name.lower() in ("rgb", "rgba") and count == 1
 
 
 def _unpack_rgb(values: np.ndarray, typ: str, size: int) -> list:
