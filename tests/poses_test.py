@@ -79,10 +79,10 @@ def test_relative_motion_takes_one_scan_s_points_to_the_other_s():
 def test_conf_files_round_trip(tmp_path):
     rng = np.random.default_rng(0)
     poses = np.stack([np.eye(4)] + [random_pose(rng) for _ in range(3)])
-    names = ["a.ply", "b.ply", "c.pcd", "d.xyz"]
+    names = ["a.ply", "b.ply", "site 2 station 7.pcd", "d.xyz"]  # a name with spaces reads back whole
     scan_poses.write_poses(str(tmp_path / "p.conf"), names, poses)
     got = scan_poses.read_poses(str(tmp_path / "p.conf"))
-    assert list(got) == ["a", "b", "c", "d"]
+    assert list(got) == ["a", "b", "site 2 station 7", "d"]
     np.testing.assert_allclose(np.stack(list(got.values())), poses, atol=1e-8)  # 10 significant digits written
     if (BUNNY / "bun.conf").is_file():  # bun.conf's own convention survives a write
         true = scan_poses.read_poses(str(BUNNY / "bun.conf"))

@@ -23,8 +23,9 @@ def read_poses(conf_path: str) -> dict:
     with open(conf_path) as f:
         for line in f:
             parts = line.split()
-            if len(parts) == 9 and parts[0] == "bmesh":
-                t, q = np.array(parts[2:5], float), np.array(parts[5:9], float)
+            if len(parts) >= 9 and parts[0] == "bmesh":  # a name with spaces spans several parts
+                t, q = np.array(parts[-7:-4], float), np.array(parts[-4:], float)
+                parts = [parts[0], " ".join(parts[1:-7])]
                 pose = np.eye(4)
                 pose[:3, :3] = Rotation.from_quat(q).as_matrix().T
                 pose[:3, 3] = t
