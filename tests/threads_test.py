@@ -73,6 +73,9 @@ def test_two_threads_calling_align_give_the_serial_answers():
     pts = rng.normal(size=(3000, 3))
     ref = pts @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).T + 0.01
     serial = alignment.align(pts, ref, init="classical").transform
+    import numba
+    if numba.threading_layer() == "workqueue":  # not safe for concurrent callers: aborts the process (issue 52)
+        pytest.skip("Numba's workqueue layer cannot run parallel loops from two threads at once")
     got = {}
     workers = [threading.Thread(target=lambda k=k: got.update({k: alignment.align(pts, ref, init="classical")
                                                                 .transform})) for k in range(2)]
