@@ -116,6 +116,18 @@ def emit(record: dict, path: str | None = None) -> None:
 
 # ---- what was measured where ----------------------------------------------------------------------------------
 
+def commit() -> str:
+    """The checkout's commit (``+`` when tracked files differ from it), or ``"unknown"``."""
+    git = ["git", "-C", REPO]
+    try:
+        head = subprocess.run(git + ["rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
+        dirty = subprocess.run(git + ["status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                               text=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head.stdout.strip() + ("+" if dirty else "")
+
+
 def frameworks_loaded(own: str | None = None) -> dict:
     """``{"jax_loaded", "torch_loaded"}`` for this process; with ``own``, asserts the other one is absent."""
     loaded = {"jax_loaded": "jax" in sys.modules, "torch_loaded": "torch" in sys.modules}

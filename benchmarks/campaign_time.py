@@ -131,18 +131,6 @@ def _child(a) -> int:
     return 0
 
 
-def commit() -> str:
-    """The checkout's commit (``+`` when files differ from it), or ``"unknown"``."""
-    git = ["git", "-C", bench_utils.REPO]
-    try:
-        head = subprocess.run(git + ["rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
-        dirty = subprocess.run(git + ["status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                               text=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return head.stdout.strip() + ("+" if dirty else "")
-
-
 def child_run(script: str, argv: list, side: str, extra=(), timeout: float | None = None) -> dict:
     """The last JSON line of ``script argv --side side`` run in a fresh process, with its wall time
     (``process_seconds``); ``error`` (its last stderr line) when it failed; stopped after ``timeout`` seconds:
@@ -196,7 +184,7 @@ def main(argv=None) -> int:
     settings = os.path.join(a.set, "settings.json")
     made = json.load(open(settings)) if os.path.exists(settings) else {}
     record = {"task": "scan_campaign", "set": os.path.basename(os.path.normpath(a.set)), "scans": len(names),
-              "commit": commit(),
+              "commit": bench_utils.commit(),
               "image_size": made.get("image_size"), "noise": made.get("noise"), "shuffled": made.get("shuffle"),
               **bench_utils.session("campaign_time.py", argv, bench_utils.available_cpus(), "default")}
     child_argv = [a.set, "--conf", a.conf, "--seed", str(a.seed), "--open3d-voxel", repr(a.open3d_voxel),

@@ -71,8 +71,7 @@ def test_errors_are_the_same_in_the_grid():
     off[:3, :3] = Rotation.from_rotvec([0.0, np.radians(1.0), 0.0]).as_matrix()
     off[:3, 3] = [0.01, 0.0, 0.0]
     local_truth = np.linalg.inv(s.poses[1]) @ s.poses[0]
-    shift = lambda c: np.block([[np.eye(3), c[:, None]], [np.zeros((1, 3)), np.ones((1, 1))]])  # noqa: E731
-    grid_answer = shift(g.origins[1]) @ local_truth @ off @ shift(-g.origins[0])
+    grid_answer = sets.translation(g.origins[1]) @ local_truth @ off @ sets.translation(-g.origins[0])
     grid_truth = np.linalg.inv(g.poses[1]) @ g.poses[0]
     for answer, truth, at in ((local_truth @ off, local_truth, s.origins[0]), (grid_answer, grid_truth, g.origins[0])):
         rot, trans = sets.errors(answer, truth, at)

@@ -37,7 +37,6 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 
@@ -60,10 +59,8 @@ def shifted(method, shift):
     """``method(src, ref, sensors) -> (4, 4)`` run on clouds (and sensors) moved by ``-shift (3,)``, its answer
     moved back: a viewer's "global shift"."""
     def run(src, ref, sensors):
-        to_local = np.eye(4)
-        to_local[:3, 3] = -shift
         local = None if sensors is None else [v - shift for v in sensors]
-        return np.linalg.inv(to_local) @ method(src - shift, ref - shift, local) @ to_local
+        return sets.translation(shift) @ method(src - shift, ref - shift, local) @ sets.translation(-shift)
     return run
 
 
@@ -116,10 +113,8 @@ def run_scans(s: sets.ScanSet, method: str, warm: sets.ScanSet, seed: int = 0) -
         from rpmnet_jax.evaluation import baselines
         shift = clouds[0][0].copy() if s.kind == "georeferenced" else np.zeros(3)
         t0 = time.perf_counter()
-        poses = baselines.open3d_multiway([c - shift for c in clouds], s.voxel)
-        to_local = np.eye(4)
-        to_local[:3, 3] = -shift
-        poses = np.linalg.inv(to_local) @ poses @ to_local
+        poses = sets.translation(shift) @ baselines.open3d_multiway([c - shift for c in clouds], s.voxel) @ \
+            sets.translation(-shift)
     seconds = time.perf_counter() - t0
     errors = pose_errors.pose_errors(poses, s.poses[order], clouds)
     return {"seconds": seconds, "first": s.names[order[0]],  # the frame: its own errors are 0 by definition
@@ -152,22 +147,10 @@ def worker(a) -> None:
     result = (run_pairs(s, a.method, a.max_pairs, warm) if a.task == "pairs" else run_scans(s, a.method, warm))
     record = {"set": s.name, "kind": s.kind, "part": a.part, "task": a.task, "method": a.method,
               "scans": len(s.names), "voxel": s.voxel, "extent": s.extent, **result,
-              "peak_rss_mb": bench_utils.peak_rss_mb(), "commit": _commit(), "versions": _versions(a.method),
+              "peak_rss_mb": bench_utils.peak_rss_mb(), "commit": bench_utils.commit(), "versions": _versions(a.method),
               **bench_utils.environment()}
     record["summary"] = summary(record)
     print(json.dumps(record), flush=True)
-
-
-def _commit() -> str:
-    """The checkout's commit (``+`` when tracked files differ from it), or ``"unknown"``."""
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True,
-                              cwd=HERE).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                               text=True, cwd=HERE).stdout.strip()
-        return head + ("+" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def _versions(method: str) -> dict:

@@ -89,10 +89,8 @@ def georeferenced(s: ScanSet) -> ScanSet:
     """``s`` moved into the national grid: every scan holds ``p + GRID_ORIGIN``; the poses become
     ``G P G⁻¹`` (``G`` the shift), so the motion between any two scans is the same rigid motion written in grid
     coordinates, and each scan's sensor sits at ``GRID_ORIGIN``."""
-    grid = np.eye(4)
-    grid[:3, 3] = GRID_ORIGIN
     clouds = [points + GRID_ORIGIN for points in s.clouds]
-    poses = grid @ s.poses @ np.linalg.inv(grid)
+    poses = translation(GRID_ORIGIN) @ s.poses @ translation(-GRID_ORIGIN)
     meta = dict(s.meta, kind="georeferenced", georeferenced_from=s.name)
     return ScanSet(s.name + "@grid", "georeferenced", s.names, clouds, poses, s.voxel, _extent(clouds, poses), meta,
                    s.origins + GRID_ORIGIN, s.sensors)
@@ -131,14 +129,20 @@ def pairs(s: ScanSet, max_pairs: int, seed: int = 0) -> list:
     return candidates
 
 
+def translation(offset) -> np.ndarray:
+    """The ``(4, 4)`` motion ``x ↦ x + offset`` (``offset (3,)``)."""
+    out = np.eye(4)
+    out[:3, 3] = offset
+    return out
+
+
 def errors(estimate, truth, at) -> tuple:
     """``(rotation error °, translation error)`` of ``estimate (4, 4)`` against ``truth (4, 4)`` (both map a
     source onto a reference), the translation error being the displacement of the source's point ``at (3,)``
     (its frame's origin): the same numbers whether the clouds sit near the origin or in a national grid."""
     from rpmnet_jax import metrics
-    shift = np.eye(4)
-    shift[:3, 3] = at
-    return metrics.transform_errors(np.linalg.inv(shift) @ estimate @ shift, np.linalg.inv(shift) @ truth @ shift)
+    to_local, back = translation(-np.asarray(at)), translation(at)
+    return metrics.transform_errors(to_local @ estimate @ back, to_local @ truth @ back)
 
 
 def turn(points: np.ndarray, seed: int) -> tuple:
