@@ -40,7 +40,7 @@ def test_classical_edge_recovers_a_known_transform_at_any_angle(degrees):
     moved = edges.make_scan(scans[1].points @ turn[:3, :3].T, scans[1].normals @ turn[:3, :3].T, 0.3, seed=1)
     scans = [edges.make_scan(scans[0].points, scans[0].normals, 0.3, seed=0), moved]
     truth = turn @ truth
-    assert scans[0].features.shape == (len(scans[0].keypoints), 33)  # 1,024 keypoints or all of a small scan
+    assert scans[0].features.shape == (len(scans[0].keypoints), 33)  # every point of a small scan at voxel 0
     found = edges.classical_edges(scans, 0, 1, MAX_DISTANCE, 0.075, np.random.default_rng(0), num_points=256,
                                   max_plane_residual=0.1)
     e = found[0]  # the best answer first

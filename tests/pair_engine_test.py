@@ -49,8 +49,9 @@ def test_in_process_imports_no_dask():
 
 def test_a_pair_s_edge_does_not_depend_on_the_order():
     clouds, _ = ring_scans(4)
-    scans, voxel, radius = scan_alignment._prepare_scans(clouds, None, None)
-    settings = pair_engine.Settings(0.05 * radius, 64, 2, 2, 300, 300, 0, 0.075 * radius)
+    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)
+    settings = pair_engine.Settings(scan_alignment.DISTANCE_VOXELS * voxel, 64, 2, 2, 300, 300, 0,
+                                    scan_alignment.RANSAC_VOXELS * voxel)
     pairs = [(0, 1), (1, 2), (0, 3), (2, 3)]
     starts = [np.eye(4)] * len(pairs)
     with pair_engine.PairEngine() as engine:
@@ -66,8 +67,9 @@ def test_a_pair_s_edge_does_not_depend_on_the_order():
 
 def test_cached_pairs_are_reused_and_a_changed_scan_s_pairs_computed_again(tmp_path):
     clouds, _ = ring_scans(4)
-    scans, _, radius = scan_alignment._prepare_scans(clouds, None, 0.004)
-    settings = pair_engine.Settings(0.05 * radius, 64, 2, 2, 300, 300, 0, 0.075 * radius)
+    scans, voxel = scan_alignment._prepare_scans(clouds, None, 0.004)
+    settings = pair_engine.Settings(scan_alignment.DISTANCE_VOXELS * voxel, 64, 2, 2, 300, 300, 0,
+                                    scan_alignment.RANSAC_VOXELS * voxel)
     pairs, starts = [(0, 1), (1, 2), (0, 3), (2, 3)], [np.eye(4)] * 4
 
     def run(scans):

@@ -13,7 +13,6 @@ import numpy as np
 
 from rpmnet_jax.multiway import edge_doubt, edges as edges_lib, options as options_lib, pair_engine, scan_alignment
 from rpmnet_jax.ops import se3
-from rpmnet_jax.pairwise import alignment
 
 
 def rotation_error_deg(transform, truth) -> float:
@@ -35,15 +34,15 @@ def scan_set(clouds, poses, *, seed: int = 0, tick=None, **meta) -> list:
     inlier_rmse, plane_residual, information, stage, error_deg}, ...]}``, answers best first as
     ``classical_edges`` returns them (``seed``: align_scans' ``ScanOptions.seed``); ``tick(done, total)``."""
     o = options_lib.ScanOptions(seed=seed)
-    scans, _, radius = scan_alignment._prepare_scans(clouds, None, None)
-    max_dist = alignment.DEFAULT_RELATIVE_DISTANCE * radius
+    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)
+    max_dist = scan_alignment.DISTANCE_VOXELS * voxel
     candidates = set(scan_alignment._candidate_pairs(scans, o.all_pairs_up_to, o.neighbours, seed))
     pairs = list(itertools.combinations(range(len(scans)), 2))
     out = []
     for k, (i, j) in enumerate(pairs):
         truth = np.linalg.inv(poses[j]) @ poses[i]
         answers = edges_lib.classical_edges(
-            scans, i, j, max_dist, scan_alignment.RANSAC_DISTANCE * radius,
+            scans, i, j, max_dist, scan_alignment.RANSAC_VOXELS * voxel,
             pair_engine.pair_rng(seed, pair_engine.CLASSICAL_TAG, i, j),
             num_points=scan_alignment.NETWORK_ICP_POINTS, max_plane_residual=o.max_plane_residual)
         out.append({**meta, "i": i, "j": j, "num_scans": len(scans), "max_distance": max_dist,

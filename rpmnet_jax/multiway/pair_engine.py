@@ -207,8 +207,8 @@ class PairEngine:
         """Classical edges (FPFH + RANSAC + short ICP) of ``pairs [(i, j), ...]``: per pair, in that order, the
         list of its distinct answers (possibly empty); ``tick(done, total)`` as they finish."""
         s = self.settings
-        key = (edges_lib.FEATURE_POINTS, edges_lib.FEATURE_NEIGHBOURS, s.network_icp_points, icp.NETWORK_EDGE,
-               s.max_distance, s.ransac_distance, s.max_plane_residual, s.seed)
+        key = (edges_lib.FEATURE_POINTS, edges_lib.KEYPOINT_VOXELS, edges_lib.FEATURE_NEIGHBOURS,
+               s.network_icp_points, icp.NETWORK_EDGE, s.max_distance, s.ransac_distance, s.max_plane_residual, s.seed)
         names = {tuple(p): self._name("classical", p, key) for p in pairs}
         found = self._load(names)
         tasks = [(classical_pair, (i, j, s), [(i, j)]) for i, j in names if (i, j) not in found]

@@ -51,18 +51,23 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
-from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, scoring, threads
+from rpmnet_jax.geometry import cloud, normals as normals_lib, offsets, sampling, scoring, threads
 from rpmnet_jax.multiway import candidate_pairs, edge_doubt, edges as edges_lib, joint_refine, options as options_lib
 from rpmnet_jax.multiway import pair_engine, pose_graph
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment
 from rpmnet_jax.weights import loading
 
-DEFAULT_RELATIVE_VOXEL = 0.02
+DEFAULT_RELATIVE_VOXEL = 0.02  # the voxel when none is given: × the median robust scan radius (an object's rule)
+# Every other size is a multiple of the voxel, as in KISS-ICP and KISS-Matcher: a room or a street given its voxel
+# gets distances that fit it. At the default voxel these are the object shares of the radius used before: the FPFH
+# radius 0.3 and the RANSAC distance 0.075 (Open3D's recipe on unit-sphere clouds), the correspondence distance
+# 0.05 (alignment.DEFAULT_RELATIVE_DISTANCE)
+FEATURE_VOXELS = 15.0  # FPFH radius of the classical edges
+RANSAC_VOXELS = 3.75  # RANSAC's inlier distance
+DISTANCE_VOXELS = 2.5  # the correspondence distance (fitness, overlap, ICP gates)
 MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
 NETWORK_ICP_POINTS = 1500  # the short ICP of a pair edge (icp.NETWORK_EDGE), source points per candidate pair
-FEATURE_RADIUS = 0.3  # FPFH radius of the classical edges, × the median robust scan radius (Open3D's recipe on
-RANSAC_DISTANCE = 0.075  # unit-sphere clouds: radius 0.3, RANSAC distance 0.075)
 NETWORK_NOISE_SCALE = 3.0  # the pair edges' short ICP is coarser: their noise floor is this many times larger
 
 
@@ -93,15 +98,17 @@ def _candidate_pairs(scans, all_pairs_up_to: int, neighbours: int, seed: int) ->
     return candidate_pairs.select_pairs(candidate_pairs.overlap_scores(scans, seed=seed), neighbours)
 
 
-def _prepare_scans(clouds, normals, voxel_size):
+def _prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3)):
+    """The cleaned scans moved by ``-shift``, voxel-downsampled, with normals and features: (scans, voxel)."""
     if len(clouds) < 2:
         raise ValueError(f"need at least two scans, got {len(clouds)}")
     normals = [None] * len(clouds) if normals is None else list(normals)
     if len(normals) != len(clouds):
         raise ValueError(f"got {len(normals)} normal arrays for {len(clouds)} scans")
     cleaned = [cloud.clean_cloud(f"scan {i}", c, n)[:2] for i, (c, n) in enumerate(zip(clouds, normals))]
-    radii = [cloud.robust_radius(p) for p, _ in cleaned]
-    voxel = float(voxel_size) if voxel_size is not None else DEFAULT_RELATIVE_VOXEL * float(np.median(radii))
+    cleaned = [(p - shift, n) for p, n in cleaned]  # float64: the shift loses nothing
+    voxel = (float(voxel_size) if voxel_size is not None
+             else DEFAULT_RELATIVE_VOXEL * float(np.median([cloud.robust_radius(p) for p, _ in cleaned])))
     scans = []
     for i, (p, n) in enumerate(cleaned):
         p, n = sampling.voxel_downsample(p, n, voxel)
@@ -109,8 +116,8 @@ def _prepare_scans(clouds, normals, voxel_size):
             raise ValueError(f"scan {i}: {len(p)} points after voxel downsampling at {voxel:.4g}; "
                              "a smaller voxel size is needed")
         scans.append(edges_lib.make_scan(p, n if n is not None else normals_lib.estimate_normals(p),
-                                         FEATURE_RADIUS * float(np.median(radii)), seed=i))
-    return scans, voxel, float(np.median(radii))
+                                         FEATURE_VOXELS * voxel, voxel, seed=i))
+    return scans, voxel
 
 
 def _screened(answers_per_pair, max_dist: float, good, reject: bool):
@@ -266,10 +273,11 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
 
     clock = stopwatch.Stopwatch()
     with clock.stage("prepare"):
-        scans, voxel, radius = _prepare_scans(clouds, normals, o.voxel_size)
+        shift = offsets.common_shift(clouds)  # every estimate is made near the origin, then moved back
+        scans, voxel = _prepare_scans(clouds, normals, o.voxel_size, shift)
         num_scans = len(scans)
         max_dist = (float(o.max_correspondence_distance) if o.max_correspondence_distance is not None
-                    else alignment.DEFAULT_RELATIVE_DISTANCE * radius)
+                    else DISTANCE_VOXELS * voxel)
         noise = (np.radians(o.edge_sigma_deg), o.edge_sigma_fraction * max_dist)
         network_noise = tuple(NETWORK_NOISE_SCALE * x for x in noise)
         if params is None and checkpoint is not None:  # a caller's checkpoint is checked (and refused) up front
@@ -277,7 +285,7 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
         cfg = cfg or config_lib.RPMNetConfig()
         engine.bind(scans, params, cfg, pair_engine.Settings(
             max_dist, o.num_points, o.num_iters, o.batch_size, NETWORK_ICP_POINTS, o.refine_points, o.seed,
-            RANSAC_DISTANCE * radius, o.max_plane_residual))
+            RANSAC_VOXELS * voxel, o.max_plane_residual))
 
     def good(e, fitness):
         return e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
@@ -353,6 +361,13 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
                       f"fitness {o.min_fitness} with coinciding surfaces); left out", LeftOutWarning, stacklevel=3)
     left_out = tuple(s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0]))
     first = min(s for s in range(num_scans) if s not in left_out)
-    poses = np.linalg.inv(poses[first]) @ poses  # NaN rows stay NaN
-    return ScanAlignment(poses, tuple(final_edges), tuple(rejected + final_rejected), left_out, voxel, max_dist,
-                         clock.timings(), tuple(sorted(set(resting + doubtful) - set(left_out))), counts)
+    poses = offsets.unshift_transforms(np.linalg.inv(poses[first]) @ poses, shift)  # NaN rows stay NaN
+    return ScanAlignment(poses, _unshifted(final_edges, shift), _unshifted(rejected + final_rejected, shift), left_out,
+                         voxel, max_dist, clock.timings(), tuple(sorted(set(resting + doubtful) - set(left_out))),
+                         counts)
+
+
+def _unshifted(edges, shift) -> tuple:
+    """``edges`` between the scans moved by ``-shift`` → the same edges between the caller's frames."""
+    return tuple(e._replace(transform=offsets.unshift_transforms(e.transform, shift),
+                            information=offsets.unshift_information(e.information, shift)) for e in edges)
