@@ -108,7 +108,7 @@ def test_bunny_scan_bun000_scores_its_true_neighbours_best():
     require(BUNNY / "bun.conf", "Stanford bunny scans")
     names = list(scan_poses.read_poses(str(BUNNY / "bun.conf")))
     clouds = [cloud_io.read_cloud(str(BUNNY / f"{n}.ply"))[0] for n in names]
-    scans, _ = scan_alignment._prepare_scans(clouds, None, None)
+    scans, _ = scan_alignment._prepare_scans(clouds, None, None)[:2]
     scores = candidate_pairs.overlap_scores(scans)
     first = names.index("bun000")
     ranked = [names[j] for j in np.argsort(-scores[first]) if j != first]

@@ -7,7 +7,7 @@ import pytest
 
 import rpmnet_jax
 from conftest import asymmetric_shape, cropped_pair, rotation_about, rotation_error_deg
-from rpmnet_jax.multiway import edges
+from rpmnet_jax.multiway import edges, sizes
 from rpmnet_jax.weights import loading
 
 MAX_DISTANCE = 0.05  # the default correspondence distance: 5% of the unit radius
@@ -29,7 +29,7 @@ def test_icp_edge_recovers_a_known_transform(seed):
     assert rotation_error_deg(e.transform[:3, :3], truth[:3, :3]) < 1.0
     assert np.linalg.norm(e.transform[:3, 3] - truth[:3, 3]) < 0.01
     # the acceptance rule of align_scans (right answers <= 0.06x on the bunny)
-    assert e.plane_residual <= rpmnet_jax.ScanOptions().max_plane_residual * MAX_DISTANCE
+    assert e.plane_residual <= sizes.OBJECT_PLANE_RESIDUAL * MAX_DISTANCE
 
 
 @pytest.mark.parametrize("degrees", [40.0, 150.0])

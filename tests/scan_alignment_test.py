@@ -11,7 +11,7 @@ from rpmnet_jax.evaluation import pose_errors
 from rpmnet_jax.geometry import cloud
 from rpmnet_jax.io import clouds as cloud_io
 from rpmnet_jax.io import poses as scan_poses
-from rpmnet_jax.multiway import edge_doubt, edges as edges_lib, scan_alignment
+from rpmnet_jax.multiway import edge_doubt, edges as edges_lib, scan_alignment, sizes
 
 BUNNY = DATA / "stanford_bunny"
 
@@ -93,13 +93,13 @@ def test_a_stray_point_does_not_change_a_scan_s_size():
     """The default voxel and correspondence distance follow the median robust radius of the scans: one point
     100 radii away leaves them as they are."""
     clouds, _ = synthetic_scans()
-    _, voxel = scan_alignment._prepare_scans(clouds, None, None)
+    voxel = scan_alignment._prepare_scans(clouds, None, None).voxel
     radius = float(np.median([cloud.robust_radius(c) for c in clouds]))
     stray = clouds[1].mean(0) + 100 * np.ptp(clouds[1], axis=0)
     dirty = [clouds[0], np.concatenate([clouds[1], stray[None]]), clouds[2]]
-    _, dirty_voxel = scan_alignment._prepare_scans(dirty, None, None)
+    dirty_voxel = scan_alignment._prepare_scans(dirty, None, None).voxel
     assert dirty_voxel == voxel
-    assert voxel == pytest.approx(scan_alignment.DEFAULT_RELATIVE_VOXEL * radius)
+    assert voxel == pytest.approx(sizes.OBJECT_RELATIVE_VOXEL * radius)
 
 
 @pytest.mark.slow
@@ -118,14 +118,14 @@ def test_a_placement_flagged_likely_wrong_is_reported(monkeypatch):
     import types
 
     clouds, _ = synthetic_scans()
-    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)
+    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)[:2]
     poses = np.full((len(scans), 4, 4), np.nan)
     poses[0] = np.eye(4)
     flags = iter([True, False])
     monkeypatch.setattr(scan_alignment.alignment, "align", lambda *a, **k: types.SimpleNamespace(
         transform=np.eye(4), fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=next(flags)))
     poses, edges, pending, doubtful = scan_alignment._place_remaining(
-        scans, poses, None, None, voxel, scan_alignment.DISTANCE_VOXELS * voxel, lambda fitness, residual: True, 0, lambda *_: None)
+        scans, poses, None, None, voxel, sizes.DISTANCE_VOXELS * voxel, lambda fitness, residual: True, 0, lambda *_: None)
     assert pending == [] and doubtful == [1] and np.isfinite(poses).all()
 
 

@@ -12,6 +12,7 @@ import os
 import numpy as np
 
 from rpmnet_jax.multiway import edge_doubt, edges as edges_lib, options as options_lib, pair_engine, scan_alignment
+from rpmnet_jax.multiway import sizes
 from rpmnet_jax.ops import se3
 
 
@@ -34,17 +35,17 @@ def scan_set(clouds, poses, *, seed: int = 0, tick=None, **meta) -> list:
     inlier_rmse, plane_residual, information, stage, error_deg}, ...]}``, answers best first as
     ``classical_edges`` returns them (``seed``: align_scans' ``ScanOptions.seed``); ``tick(done, total)``."""
     o = options_lib.ScanOptions(seed=seed)
-    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)
-    max_dist = scan_alignment.DISTANCE_VOXELS * voxel
+    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)[:2]
+    max_dist = sizes.DISTANCE_VOXELS * voxel
     candidates = set(scan_alignment._candidate_pairs(scans, o.all_pairs_up_to, o.neighbours, seed))
     pairs = list(itertools.combinations(range(len(scans)), 2))
     out = []
     for k, (i, j) in enumerate(pairs):
         truth = np.linalg.inv(poses[j]) @ poses[i]
         answers = edges_lib.classical_edges(
-            scans, i, j, max_dist, scan_alignment.RANSAC_VOXELS * voxel,
+            scans, i, j, max_dist, sizes.RANSAC_VOXELS * voxel,
             pair_engine.pair_rng(seed, pair_engine.CLASSICAL_TAG, i, j),
-            num_points=scan_alignment.NETWORK_ICP_POINTS, max_plane_residual=o.max_plane_residual)
+            num_points=scan_alignment.NETWORK_ICP_POINTS, max_plane_residual=sizes.OBJECT_PLANE_RESIDUAL)
         out.append({**meta, "i": i, "j": j, "num_scans": len(scans), "max_distance": max_dist,
                     "truth": truth.tolist(), "candidate": (i, j) in candidates,
                     "true_overlap": edges_lib.predicted_overlap(scans, i, j, truth, max_dist),
@@ -94,7 +95,7 @@ def good(records) -> np.ndarray:
     """``(A,)`` bool: the answer passes align_scans' default rule for a pair edge (fitness ≥ ``min_fitness``,
     median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance)."""
     o = options_lib.ScanOptions()
-    return np.array([e.fitness >= o.min_fitness and e.plane_residual <= o.max_plane_residual * r["max_distance"]
+    return np.array([e.fitness >= o.min_fitness and e.plane_residual <= sizes.OBJECT_PLANE_RESIDUAL * r["max_distance"]
                      for r, _, e in answers(records)], bool)
 
 

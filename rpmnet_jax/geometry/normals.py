@@ -40,6 +40,15 @@ def estimate_normals(points: np.ndarray, k: int = 16, viewpoint: np.ndarray | No
     return normals
 
 
+def facing(points: np.ndarray, sensor: np.ndarray, k: int = 16) -> np.ndarray:
+    """Unit normals ``(N, 3)`` of a scan ``points (N, 3)`` taken from ``sensor (3,)``, each turned toward it (as
+    Open3D's ``orient_normals_towards_camera_location``): every surface a sensor saw faces it, indoors and out."""
+    normals = estimate_normals(points, k, orient=False)
+    toward = np.sum(normals * (np.asarray(sensor, np.float64) - points), axis=1) < 0
+    normals[toward] *= -1
+    return normals
+
+
 def normals_at(points: np.ndarray, rows: np.ndarray, k: int = 16, tree: kdtree.KdTree | None = None) -> np.ndarray:
     """Unoriented unit normals ``(R, 3)`` of ``points[rows]`` from their ``k`` nearest neighbours among all
     ``points (N, 3)`` (as :func:`estimate_normals` with ``orient=False``, for a few rows of a large cloud)."""

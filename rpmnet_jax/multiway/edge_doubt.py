@@ -21,7 +21,7 @@ import os
 
 import numpy as np
 
-from rpmnet_jax.multiway import options as options_lib, pose_graph
+from rpmnet_jax.multiway import options as options_lib, pose_graph, sizes
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import doubt
 
@@ -68,7 +68,7 @@ def features(edge, max_distance: float, answers=()) -> np.ndarray:
     cond = doubt.conditioning(edge.information, *lever(edge.information))
     values = {
         "fitness": float(edge.fitness), "plane": plane, "rmse": float(edge.inlier_rmse) / d,
-        "good": float(edge.fitness >= _DEFAULTS.min_fitness and plane <= _DEFAULTS.max_plane_residual),
+        "good": float(edge.fitness >= _DEFAULTS.min_fitness and plane <= sizes.OBJECT_PLANE_RESIDUAL),
         "conditioning": cond[0] / 12.0, "rotation_conditioning": cond[1] / 12.0,
         "translation_conditioning": cond[2] / 12.0,
         "distinct": float(np.log1p(len(others) + 1)),

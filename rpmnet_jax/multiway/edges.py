@@ -97,7 +97,7 @@ DISTINCT_DEG = 10.0  # a pair's answers whose rotations lie closer than this are
 
 
 def classical_edges(scans, i: int, j: int, max_distance: float, ransac_distance: float, rng: np.random.Generator, *,
-                    num_points: int, max_plane_residual: float, hypotheses: int = 2) -> list:
+                    num_points: int, max_plane_residual: float, hypotheses: int = 2, identity: bool = True) -> list:
     """The distinct answers ``[Edge, ...]`` of ``i → j`` from FPFH + RANSAC on the scans' keypoints (mutual
     feature matches, up to ``hypotheses`` distinct transforms within ``ransac_distance``), each refined as a
     network edge's short ICP (``icp.NETWORK_EDGE``, ``num_points``), best first: those whose median
@@ -107,7 +107,8 @@ def classical_edges(scans, i: int, j: int, max_distance: float, ransac_distance:
     corr = feature_ransac.mutual_correspondences(a.features, b.features)
     hyp = feature_ransac.ransac_hypotheses(a.points[a.keypoints], b.points[b.keypoints], corr, ransac_distance,
                                            top_k=hypotheses, seed=int(rng.integers(2 ** 31)))
-    starts = [np.eye(4)] + list(hyp.transforms)  # the scans as they lie too: scans that come in roughly one frame
+    # the scans as they lie too (``identity``): scans that come in roughly one frame
+    starts = [np.eye(4)] * identity + list(hyp.transforms)
     found = sorted((icp_edge(scans, i, j, t, max_distance, rng, num_points=num_points, schedule=icp.NETWORK_EDGE,
                              stage="classical") for t in starts),
                    key=lambda e: (e.plane_residual <= max_plane_residual * max_distance, e.fitness), reverse=True)

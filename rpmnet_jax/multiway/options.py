@@ -52,7 +52,7 @@ class ScanOptions:
     max_correspondence_distance: float | None = None
     min_fitness: float = 0.3  # accepting an edge
     min_overlap: float = 0.2
-    max_plane_residual: float = 0.1  # chosen on the 10 bunny scans (tuning data: numbers on them are not held-out)
+    max_plane_residual: float | None = None  # None: 0.1 for objects, 0.06 for scenes (multiway.sizes)
     refine: str = "joint"  # refinement; chosen on 12 simulated and the 10 real bunny scans (tuning data: not held-out)
     refine_rounds: int = 2
     refine_neighbours: int = 8
@@ -64,7 +64,8 @@ class ScanOptions:
     def __post_init__(self):
         for name in ("voxel_size", "max_correspondence_distance"):
             checks.require_positive(f"ScanOptions.{name}", getattr(self, name), optional=True)
-        for name in ("max_plane_residual", "edge_sigma_deg", "edge_sigma_fraction"):
+        checks.require_positive("ScanOptions.max_plane_residual", self.max_plane_residual, optional=True)
+        for name in ("edge_sigma_deg", "edge_sigma_fraction"):
             checks.require_positive(f"ScanOptions.{name}", getattr(self, name))
         for name, least in (("num_points", 3), ("num_iters", 1), ("batch_size", 1), ("all_pairs_up_to", 2),
                             ("neighbours", 1), ("refine_rounds", 0), ("refine_neighbours", 1), ("refine_points", 3)):

@@ -38,6 +38,8 @@ class Settings(NamedTuple):
     seed: int
     ransac_distance: float = 0.0  # classical edges: RANSAC's inlier distance
     max_plane_residual: float = 0.1  # classical edges: a hypothesis is good below this × max_distance
+    identity_start: bool = True  # classical edges: ICP from the scans as they lie too (not for scans in their
+    # sensors' frames: there it is the sensor standing still, and a LiDAR sweep's rings lock onto it)
 
 
 def pair_rng(seed: int, tag: int, i: int, j: int) -> np.random.Generator:
@@ -71,7 +73,7 @@ def classical_pair(scans, i, j, settings: Settings) -> list:
     s = settings
     return [((i, j), edges_lib.classical_edges(scans, i, j, s.max_distance, s.ransac_distance,
                                                pair_rng(s.seed, CLASSICAL_TAG, i, j), num_points=s.network_icp_points,
-                                               max_plane_residual=s.max_plane_residual))]
+                                               max_plane_residual=s.max_plane_residual, identity=s.identity_start))]
 
 
 @threads.one_blas_thread()  # on a worker too: BLAS leaves the cores to the compiled loops
@@ -208,7 +210,8 @@ class PairEngine:
         list of its distinct answers (possibly empty); ``tick(done, total)`` as they finish."""
         s = self.settings
         key = (edges_lib.FEATURE_POINTS, edges_lib.KEYPOINT_VOXELS, edges_lib.FEATURE_NEIGHBOURS,
-               s.network_icp_points, icp.NETWORK_EDGE, s.max_distance, s.ransac_distance, s.max_plane_residual, s.seed)
+               s.network_icp_points, icp.NETWORK_EDGE, s.max_distance, s.ransac_distance, s.max_plane_residual, s.seed,
+               s.identity_start)
         names = {tuple(p): self._name("classical", p, key) for p in pairs}
         found = self._load(names)
         tasks = [(classical_pair, (i, j, s), [(i, j)]) for i, j in names if (i, j) not in found]

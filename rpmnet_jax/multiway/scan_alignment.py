@@ -2,13 +2,17 @@
 
 Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
 
-1. prepare: each scan cleaned, voxel-downsampled (``voxel_size``, default 2% of the median robust scan radius,
-   :func:`rpmnet_jax.geometry.cloud.robust_radius`), normals averaged per voxel when given, else estimated (PCA)
-   on the downsampled scan;
+0. every scan moved by one common shift near the origin (:mod:`rpmnet_jax.geometry.offsets`: whole units, float64),
+   so that scans in a national grid are registered as near the origin; the answers are moved back;
+1. prepare: each scan cleaned, voxel-downsampled (``voxel_size``, default a share of the median robust scan
+   radius: 2% for objects, 1% for scans seen from inside a scene; every other size a multiple of the voxel,
+   :mod:`rpmnet_jax.multiway.sizes`), normals averaged per voxel when given, else estimated (PCA) on the
+   downsampled scan and facing its sensor where one is known (else away from its centroid);
 2. pair edges: the candidate pairs are every pair up to ``all_pairs_up_to`` scans, else each scan with its
    ``neighbours`` best partners by a cheap overlap estimate (a bag of FPFH words per scan) plus a spanning tree
    of those scores (:mod:`rpmnet_jax.multiway.candidate_pairs`: O(S·k) pairs whatever the file order). Each is
-   registered by FPFH + RANSAC on 1,024 keypoints per scan (features computed once per scan) and from the
+   registered by FPFH + RANSAC on keypoints one per cube of 2 voxels (each one's FPFH from its neighbours in the
+   whole scan, computed once per scan) and from the
    identity (scans that come in roughly one frame), each answer refined by a short point-to-plane ICP; the
    candidate pairs those leave between separate groups of scans go through the network from the identity as in
    :func:`rpmnet_jax.align` (``init="local"``), in batched calls, then the same short ICP (with
@@ -53,19 +57,11 @@ import numpy as np
 from rpmnet_jax import config as config_lib, stopwatch
 from rpmnet_jax.geometry import cloud, normals as normals_lib, offsets, sampling, scoring, threads
 from rpmnet_jax.multiway import candidate_pairs, edge_doubt, edges as edges_lib, joint_refine, options as options_lib
-from rpmnet_jax.multiway import pair_engine, pose_graph
+from rpmnet_jax.multiway import pair_engine, pose_graph, sizes
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment
 from rpmnet_jax.weights import loading
 
-DEFAULT_RELATIVE_VOXEL = 0.02  # the voxel when none is given: × the median robust scan radius (an object's rule)
-# Every other size is a multiple of the voxel, as in KISS-ICP and KISS-Matcher: a room or a street given its voxel
-# gets distances that fit it. At the default voxel these are the object shares of the radius used before: the FPFH
-# radius 0.3 and the RANSAC distance 0.075 (Open3D's recipe on unit-sphere clouds), the correspondence distance
-# 0.05 (alignment.DEFAULT_RELATIVE_DISTANCE)
-FEATURE_VOXELS = 15.0  # FPFH radius of the classical edges
-RANSAC_VOXELS = 3.75  # RANSAC's inlier distance
-DISTANCE_VOXELS = 2.5  # the correspondence distance (fitness, overlap, ICP gates)
 MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
 NETWORK_ICP_POINTS = 1500  # the short ICP of a pair edge (icp.NETWORK_EDGE), source points per candidate pair
 NETWORK_NOISE_SCALE = 3.0  # the pair edges' short ICP is coarser: their noise floor is this many times larger
@@ -98,26 +94,35 @@ def _candidate_pairs(scans, all_pairs_up_to: int, neighbours: int, seed: int) ->
     return candidate_pairs.select_pairs(candidate_pairs.overlap_scores(scans, seed=seed), neighbours)
 
 
-def _prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3)):
-    """The cleaned scans moved by ``-shift``, voxel-downsampled, with normals and features: (scans, voxel)."""
+class Prepared(NamedTuple):
+    scans: list  # edges.Scan of each scan, moved by -shift
+    voxel: float  # caller's units
+    sensors: list  # each scan's sensor (3,) in the moved frame, or None
+    scene: bool  # scans seen from inside a scene (sizes.voxel)
+
+
+def _prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="auto") -> Prepared:
+    """The cleaned scans moved by ``-shift``, voxel-downsampled, with normals (the caller's, else estimated, facing
+    each scan's sensor where :func:`rpmnet_jax.multiway.sizes.sensors` knows it) and features."""
     if len(clouds) < 2:
         raise ValueError(f"need at least two scans, got {len(clouds)}")
     normals = [None] * len(clouds) if normals is None else list(normals)
     if len(normals) != len(clouds):
         raise ValueError(f"got {len(normals)} normal arrays for {len(clouds)} scans")
     cleaned = [cloud.clean_cloud(f"scan {i}", c, n)[:2] for i, (c, n) in enumerate(zip(clouds, normals))]
+    seen_from = [None if v is None else v - shift for v in sizes.sensors([p for p, _ in cleaned], viewpoints)]
     cleaned = [(p - shift, n) for p, n in cleaned]  # float64: the shift loses nothing
-    voxel = (float(voxel_size) if voxel_size is not None
-             else DEFAULT_RELATIVE_VOXEL * float(np.median([cloud.robust_radius(p) for p, _ in cleaned])))
+    voxel, scene = sizes.voxel([p for p, _ in cleaned], seen_from, voxel_size)
     scans = []
-    for i, (p, n) in enumerate(cleaned):
+    for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from)):
         p, n = sampling.voxel_downsample(p, n, voxel)
         if len(p) < MIN_VOXEL_POINTS:
             raise ValueError(f"scan {i}: {len(p)} points after voxel downsampling at {voxel:.4g}; "
                              "a smaller voxel size is needed")
-        scans.append(edges_lib.make_scan(p, n if n is not None else normals_lib.estimate_normals(p),
-                                         FEATURE_VOXELS * voxel, voxel, seed=i))
-    return scans, voxel
+        if n is None:
+            n = normals_lib.estimate_normals(p) if sensor is None else normals_lib.facing(p, sensor)
+        scans.append(edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=i))
+    return Prepared(scans, voxel, seen_from, scene)
 
 
 def _screened(answers_per_pair, max_dist: float, good, reject: bool):
@@ -247,11 +252,15 @@ def _refine_jointly(scans, poses, placed, max_dist, o, keep, tick):
     return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]
 
 
-def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = options_lib.ScanOptions(), params=None,
+def align_scans(clouds, normals=None, *, viewpoints="auto",
+                options: options_lib.ScanOptions = options_lib.ScanOptions(), params=None,
                 checkpoint=None, cfg: config_lib.RPMNetConfig | None = None, progress=None, scheduler=None,
                 cache=None) -> ScanAlignment:
     """Registers the scans ``clouds[i] (N_i, 3)`` (normals ``(N_i, 3)`` optional, per scan) into the frame of
     the first one; see the module docstring and :class:`~rpmnet_jax.multiway.options.ScanOptions`.
+    ``viewpoints``: where each scan's sensor stood (:mod:`rpmnet_jax.multiway.sizes`): ``"auto"`` (a frame origin
+    that its scan surrounds, as a LiDAR sweep's does), ``"origin"``, ``"none"`` or one ``(3,)`` (or ``None``) per
+    scan in its own coordinates; estimated normals face it, and scans seen from inside get a scene's voxel.
     ``checkpoint``: as :func:`rpmnet_jax.align`'s (default the shipped model, or pass ``params``).
     ``progress``: called as ``progress(stage, done, total)`` as the long stages advance (a CLI draws bars).
     ``scheduler``: where the pair registrations run (:mod:`rpmnet_jax.multiway.pair_engine`): ``None`` this
@@ -262,10 +271,10 @@ def align_scans(clouds, normals=None, *, options: options_lib.ScanOptions = opti
     if not isinstance(options, options_lib.ScanOptions):
         raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")
     with threads.one_blas_thread(), pair_engine.PairEngine(scheduler, cache) as engine:
-        return _align_scans(engine, clouds, normals, options, params, checkpoint, cfg, progress)
+        return _align_scans(engine, clouds, normals, viewpoints, options, params, checkpoint, cfg, progress)
 
 
-def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) -> ScanAlignment:
+def _align_scans(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, progress) -> ScanAlignment:
 
     def ticker(stage):
         """``tick(done, total)`` of ``stage``: passed on to ``progress``, if any."""
@@ -274,10 +283,11 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
     clock = stopwatch.Stopwatch()
     with clock.stage("prepare"):
         shift = offsets.common_shift(clouds)  # every estimate is made near the origin, then moved back
-        scans, voxel = _prepare_scans(clouds, normals, o.voxel_size, shift)
+        scans, voxel, seen_from, scene = _prepare_scans(clouds, normals, o.voxel_size, shift, viewpoints)
+        plane_bar = o.max_plane_residual if o.max_plane_residual is not None else sizes.plane_residual(scene)
         num_scans = len(scans)
         max_dist = (float(o.max_correspondence_distance) if o.max_correspondence_distance is not None
-                    else DISTANCE_VOXELS * voxel)
+                    else sizes.DISTANCE_VOXELS * voxel)
         noise = (np.radians(o.edge_sigma_deg), o.edge_sigma_fraction * max_dist)
         network_noise = tuple(NETWORK_NOISE_SCALE * x for x in noise)
         if params is None and checkpoint is not None:  # a caller's checkpoint is checked (and refused) up front
@@ -285,10 +295,10 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
         cfg = cfg or config_lib.RPMNetConfig()
         engine.bind(scans, params, cfg, pair_engine.Settings(
             max_dist, o.num_points, o.num_iters, o.batch_size, NETWORK_ICP_POINTS, o.refine_points, o.seed,
-            RANSAC_VOXELS * voxel, o.max_plane_residual))
+            sizes.RANSAC_VOXELS * voxel, plane_bar, all(v is None for v in seen_from)))
 
     def good(e, fitness):
-        return e.fitness >= fitness and e.plane_residual <= o.max_plane_residual * max_dist
+        return e.fitness >= fitness and e.plane_residual <= plane_bar * max_dist
 
     counts, p_of = {}, {}
     with clock.stage("candidates"):
@@ -325,7 +335,7 @@ def _align_scans(engine, clouds, normals, o, params, checkpoint, cfg, progress) 
             poses, global_edges, pending, doubtful = _place_remaining(
                 scans, poses, params, cfg, voxel, max_dist, seed=o.seed, tick=ticker("placing the other scans"),
                 accept=lambda fitness, residual: (fitness >= o.min_fitness
-                                                  and residual <= o.max_plane_residual * max_dist))
+                                                  and residual <= plane_bar * max_dist))
             counts["global"] = len(global_edges)
             global_edges = [e for e in global_edges if good(e, o.min_overlap)]
 
