@@ -252,3 +252,12 @@ def test_a_sigkilled_run_resumes_from_its_cache_with_the_same_poses(tmp_path, ra
     for name in a:
         assert rotation_error_deg(a[name][:3, :3], b[name][:3, :3]) < 0.01
         np.testing.assert_allclose(a[name][:3, 3], b[name][:3, 3], atol=1e-6)
+
+
+def test_a_stored_e57_pose_is_where_its_scanner_stood():
+    """Scans moved into an E57 file's frame by their stored poses have their sensors at the poses' origins; the
+    others follow ``--viewpoints``."""
+    pose = np.eye(4)
+    pose[:3, 3] = [512_000.0, 4_100_000.0, 120.0]
+    found = register_scans._viewpoints([np.eye(4), pose], "origin")
+    assert found[0] == "origin" and found[1].tolist() == [512_000.0, 4_100_000.0, 120.0]

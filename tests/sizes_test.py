@@ -39,12 +39,12 @@ def test_sensors_auto_takes_the_frame_origin_of_a_sweep_only():
     assert found[1] is None
     assert all(s is not None for s in sizes.sensors([_object(0), _object(1)], "origin"))
     assert sizes.sensors([_sweep(0), _sweep(1)], "none") == [None, None]
-    given = sizes.sensors([_sweep(0), _sweep(1)], [None, (1.0, 2.0, 3.0)])
-    assert given[0] is None and given[1].tolist() == [1.0, 2.0, 3.0]
+    given = sizes.sensors([_sweep(0), _sweep(1), _object(0)], [None, (1.0, 2.0, 3.0), "auto"])
+    assert given[0] is None and given[1].tolist() == [1.0, 2.0, 3.0] and given[2] is None
 
 
 @pytest.mark.parametrize("viewpoints, message", [
-    ("sensor", "viewpoints must be one of"), ([None], "got 1 viewpoints for 2 scans"),
+    ("sensor", "viewpoints must be one of"), ([None], "got 1 viewpoints for 2 scans"), ([None, "up"], "one of"),
     ([None, (0.0, np.nan, 0.0)], "viewpoint of scan 1"), ([None, (0.0, 1.0)], "viewpoint of scan 1")])
 def test_bad_viewpoints_are_refused(viewpoints, message):
     with pytest.raises(ValueError, match=message):

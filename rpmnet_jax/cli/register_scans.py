@@ -44,9 +44,16 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", default=None,
                    help="orbax training dir, .npz or official .pth (default: the shipped model)")
     p.add_argument("--voxel-size", type=float, default=None,
-                   help="registration voxel size in the scans' units (default: 2%% of the median scan radius)")
+                   help="registration voxel size in the scans' units (default: 2%% of the median scan radius for "
+                        "objects, 1%% for scans seen from inside a scene: LiDAR sweeps, scanner stations); every "
+                        "other size is a multiple of it")
     p.add_argument("--max-correspondence-distance", type=float, default=None,
-                   help="inlier threshold in the scans' units (default: 5%% of the median scan radius)")
+                   help="inlier threshold in the scans' units (default: 2.5 voxels)")
+    p.add_argument("--viewpoints", choices=("auto", "origin", "none"), default="auto",
+                   help="where each scan's sensor stood (estimated normals face it): auto (default: a scan's frame "
+                        "origin when the scan surrounds it, as a LiDAR sweep or a scanner station in its own frame "
+                        "does), origin (every scan is in its sensor's frame), none (objects: normals face away "
+                        "from each scan's centre). An E57 scan with a stored pose has its sensor there")
     p.add_argument("--refine", choices=("joint", "icp", "none"), default="joint",
                    help="the final refinement over every overlapping pair: all poses together on the pairs' points "
                         "(joint, default), rounds of pairwise ICP edges in a pose graph (icp), or none")
@@ -111,6 +118,14 @@ def _read_scans(paths: list, columns) -> tuple:
     return labels, clouds, stored, notes
 
 
+def _viewpoints(stored: list, rule: str) -> list:
+    """Per scan: its stored pose's origin (an E57 scan moved into the file's frame: the scanner stood there), else
+    ``rule``."""
+    import numpy as np
+
+    return [rule if np.array_equal(pose, np.eye(4)) else np.asarray(pose, np.float64)[:3, 3] for pose in stored]
+
+
 def _engine(args) -> tuple:
     """``(scheduler, PairCache or None)`` of ``--scheduler`` and ``--cache``, checked before anything runs."""
     from rpmnet_jax.multiway import pair_cache, pair_engine
@@ -160,6 +175,7 @@ def main(argv=None) -> int:
             warnings.simplefilter("always")
             try:
                 result = scan_alignment.align_scans([c for c, _ in clouds], [n for _, n in clouds], options=options,
+                                                    viewpoints=_viewpoints(stored, args.viewpoints),
                                                     checkpoint=args.checkpoint, progress=bars,
                                                     scheduler=scheduler, cache=cache)
             finally:

@@ -55,24 +55,26 @@ def surrounds(points: np.ndarray, sensor: np.ndarray) -> bool:
 
 def sensors(clouds, viewpoints) -> list:
     """Each scan's sensor position ``(3,)`` float64 in its own coordinates, or ``None``: ``viewpoints`` as the
-    module docstring says, ``clouds`` the cleaned scans ``(N_i, 3)`` in the caller's coordinates."""
+    module docstring says (one rule for all, or per scan a rule, a position or ``None``), ``clouds`` the cleaned
+    scans ``(N_i, 3)`` in the caller's coordinates."""
     if isinstance(viewpoints, str):
-        if viewpoints not in VIEWPOINTS:
-            raise ValueError(f"viewpoints must be one of {VIEWPOINTS} or one position per scan, got {viewpoints!r}")
-        origin = np.zeros(3)
-        if viewpoints == "none":
-            return [None] * len(clouds)
-        return [origin if viewpoints == "origin" or surrounds(c, origin) else None for c in clouds]
+        viewpoints = [viewpoints] * len(clouds)
     viewpoints = list(viewpoints)
     if len(viewpoints) != len(clouds):
         raise ValueError(f"got {len(viewpoints)} viewpoints for {len(clouds)} scans")
-    out = []
-    for i, v in enumerate(viewpoints):
-        v = None if v is None else np.asarray(v, np.float64)
-        if v is not None and (v.shape != (3,) or not np.all(np.isfinite(v))):
-            raise ValueError(f"viewpoint of scan {i}: expected three finite coordinates, got {v}")
-        out.append(v)
-    return out
+    return [_sensor(i, c, v) for i, (c, v) in enumerate(zip(clouds, viewpoints))]
+
+
+def _sensor(i: int, points: np.ndarray, viewpoint) -> np.ndarray | None:
+    if isinstance(viewpoint, str):
+        if viewpoint not in VIEWPOINTS:
+            raise ValueError(f"viewpoints must be one of {VIEWPOINTS}, positions or None, got {viewpoint!r}")
+        origin = np.zeros(3)
+        return origin if viewpoint == "origin" or (viewpoint == "auto" and surrounds(points, origin)) else None
+    v = None if viewpoint is None else np.asarray(viewpoint, np.float64)
+    if v is not None and (v.shape != (3,) or not np.all(np.isfinite(v))):
+        raise ValueError(f"viewpoint of scan {i}: expected three finite coordinates, got {v}")
+    return v
 
 
 def voxel(clouds, sensors_, given: float | None) -> tuple[float, bool]:
