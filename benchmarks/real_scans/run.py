@@ -107,8 +107,10 @@ def run_scans(s: sets.ScanSet, method: str, warm: sets.ScanSet, seed: int = 0) -
     if method == "rpmnet_jax_scans":
         import rpmnet_jax
         rpmnet_jax.align_scans(warm.clouds[:3])  # compilation, on the tune part
+        # the sensors where they are known (Open3D's recipe gets them too), else the library's own rule
+        viewpoints = [s.origins[i] for i in order] if s.sensors else "auto"
         t0 = time.perf_counter()
-        poses = rpmnet_jax.align_scans(clouds).poses
+        poses = rpmnet_jax.align_scans(clouds, viewpoints=viewpoints).poses
     else:
         from rpmnet_jax.evaluation import baselines
         shift = clouds[0][0].copy() if s.kind == "georeferenced" else np.zeros(3)
