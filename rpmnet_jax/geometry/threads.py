@@ -5,7 +5,7 @@ They must not run at once. OpenBLAS keeps its threads spinning for a while after
 that follows a product (FPFH's feature matching is one) shares the cores with threads that do nothing. On two
 cores the parallel loops then ran at half speed or worse: on the 150 partial test pairs of the real ModelNet40
 subset at any orientation, the default ``align`` took 65 ms a pair serial, 94 ms with the parallel loops, and
-52 ms with them and BLAS on one thread (:func:`one_blas_thread`), the same answers. NumPy's products here are small
+52 ms with them and BLAS on one thread (:func:`limit_blas`), the same answers. NumPy's products here are small
 (33-dimensional features, 3 × 3 frames), so one BLAS thread costs them nothing measurable.
 """
 
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
+import threading
 
 import numba
 
@@ -35,6 +36,9 @@ def chunks() -> int:
 
 
 _found = (-1, None)  # (how many modules were imported, the BLAS libraries found then)
+_limited = None  # the controller whose libraries were limited
+_blas_lock = threading.Lock()
+_serial = threading.RLock()  # one caller at a time under Numba's workqueue layer
 
 
 def _controller():
@@ -49,13 +53,54 @@ def _controller():
     return _found[1]
 
 
+def limit_blas() -> None:
+    """Sets BLAS (NumPy's and SciPy's OpenBLAS, MKL) to one thread for the rest of the process, so that it leaves
+    the cores to Numba's parallel loops: once, and again only when a library has been loaded since. Never undone:
+    a setting toggled per call is process-wide, and two threads toggling it undo each other (3 runs in 9 of the
+    two-thread test failed so). NumPy's products here are small; a caller that needs many BLAS threads for its
+    own large products sets them again after (``threadpoolctl.threadpool_limits``)."""
+    global _limited
+    with _blas_lock:
+        controller = _controller()
+        if controller is not _limited:
+            controller.limit(limits=1, user_api="blas")  # not as a context: it stays
+            _limited = controller
+
+
+@numba.njit(parallel=True, cache=True)
+def _touch(n):
+    total = 0
+    for i in numba.prange(n):
+        total += i
+    return total
+
+
+_layer = []  # Numba's threading layer, once known
+
+
+def _workqueue() -> bool:
+    """Whether Numba runs its parallel loops on its workqueue layer (it cannot run two at once: a second thread's
+    loop aborts the process); the layer is chosen when the first parallel loop runs, here, by one thread."""
+    if not _layer:
+        with _blas_lock:
+            if not _layer:
+                try:
+                    layer = numba.threading_layer()
+                except ValueError:  # no parallel loop has run yet
+                    _touch(2)
+                    layer = numba.threading_layer()
+                _layer.append(layer)
+    return _layer[0] == "workqueue"
+
+
 @contextlib.contextmanager
-def one_blas_thread():
-    """Within it, BLAS (NumPy's and SciPy's OpenBLAS, MKL) runs on one thread, so that it leaves the cores to
-    Numba's parallel loops; the caller's settings come back on leaving. Made in the main thread, the setting holds
-    for every thread of the process while it lasts; made in another thread (a Dask worker's task), OpenBLAS 0.3.31
-    honoured it for that thread's calls (the partial pairs of the ModelNet40 subset, ``init="classical"`` in a worker
-    thread: 88 ms a pair without it, 30 ms with it), except once the main thread had set and restored a limit
-    itself."""
-    with _controller().limit(limits=1, user_api="blas"):
+def compiled_loops():
+    """Where the library's compiled parallel loops run (``align``, ``align_scans``, a Dask worker's pair task):
+    BLAS on one thread (:func:`limit_blas`), and under Numba's workqueue layer one caller at a time (with TBB or
+    OpenMP, threads run their loops at once). Usable as a decorator."""
+    limit_blas()
+    if _workqueue():
+        with _serial:
+            yield
+    else:
         yield

@@ -66,7 +66,7 @@ def network_chunk(scans, chunk, todo, params, cfg, settings: Settings, compile_c
     return out
 
 
-@threads.one_blas_thread()  # on a worker too: BLAS leaves the cores to the compiled loops
+@threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the compiled loops
 def classical_pair(scans, i, j, settings: Settings) -> list:
     """``[((i, j), edges)]``: the answers of scan ``i`` onto scan ``j`` from FPFH + RANSAC
     (:func:`~rpmnet_jax.multiway.edges.classical_edges`)."""
@@ -76,7 +76,7 @@ def classical_pair(scans, i, j, settings: Settings) -> list:
                                                max_plane_residual=s.max_plane_residual, identity=s.identity_start))]
 
 
-@threads.one_blas_thread()  # on a worker too: BLAS leaves the cores to the compiled loops
+@threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the compiled loops
 def refine_pair(scans, i, j, start, round_, settings: Settings) -> list:
     """``[((i, j), [edge])]``: ICP of scan ``i`` onto scan ``j`` from ``start (4, 4)`` (refinement round
     ``round_``)."""

@@ -270,7 +270,7 @@ def align_scans(clouds, normals=None, *, viewpoints="auto",
     the same scans, options and cache reuses them."""
     if not isinstance(options, options_lib.ScanOptions):
         raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")
-    with threads.one_blas_thread(), pair_engine.PairEngine(scheduler, cache) as engine:
+    with threads.compiled_loops(), pair_engine.PairEngine(scheduler, cache) as engine:
         return _align_scans(engine, clouds, normals, viewpoints, options, params, checkpoint, cfg, progress)
 
 

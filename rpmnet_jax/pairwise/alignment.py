@@ -108,7 +108,7 @@ class Answer(NamedTuple):
     support: tuple = ()  # the inits of the refined starts that ended within AMBIGUITY_DEG of it (itself included)
 
 
-@threads.one_blas_thread()  # BLAS leaves the cores to the compiled loops (geometry.threads)
+@threads.compiled_loops()  # BLAS leaves the cores to the compiled loops (geometry.threads)
 def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
           num_points: int = 1024, num_iters: int = 5, sampling: str = "random", seed: int = 0,
           reestimate_normals: bool = False, centering: str = "separate", init: str = "auto",
