@@ -4,19 +4,24 @@ plane bar follow; bad viewpoints are refused with one line."""
 import numpy as np
 import pytest
 
+from conftest import synthetic_shape
 from rpmnet_jax.geometry import normals
 from rpmnet_jax.multiway import sizes
 
 
 def _sweep(seed: int, centre=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """Ground rings and a wall around a sensor at ``centre``: ranges 2-40 m, as many points per ring as a LiDAR
-    sweep has (in its own frame)."""
-    rng = np.random.default_rng(seed)
-    r = rng.uniform(2, 40, 3000)
-    a = rng.uniform(0, 2 * np.pi, 3000)
-    ground = np.stack([r * np.cos(a), r * np.sin(a), np.full_like(r, -1.7)], 1)
-    wall = np.stack([rng.uniform(-40, 40, 1000), np.full(1000, 12.0), rng.uniform(-1.7, 4, 1000)], 1)
-    return np.concatenate([ground, wall]) + centre
+    """A LiDAR-like sweep from a sensor at ``centre``: rays every 1° of azimuth and elevation (-25° to 3°) onto
+    the ground 1.7 m below, or onto a wall 12 m away where it comes first; 80 m range, 1 cm noise."""
+    az, el = np.meshgrid(np.radians(np.arange(0.0, 360.0, 1.0)), np.radians(np.arange(-25.0, 4.0, 1.0)))
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1).reshape(-1, 3)
+    with np.errstate(divide="ignore"):
+        ground = np.where(d[:, 2] < 0, -1.7 / d[:, 2], np.inf)
+    with np.errstate(divide="ignore"):
+        wall = np.where(d[:, 1] > 0, 12.0 / d[:, 1], np.inf)
+    t = np.minimum(ground, wall)
+    seen = t < 80.0  # the scanner's range
+    d, t = d[seen], t[seen] + np.random.default_rng(seed).normal(scale=0.01, size=int(seen.sum()))
+    return t[:, None] * d + centre
 
 
 def _object(seed: int) -> np.ndarray:
@@ -26,11 +31,13 @@ def _object(seed: int) -> np.ndarray:
     return 0.1 * v[v[:, 0] < 0] + [2.0, 0.0, 0.0]
 
 
-def test_a_sweep_surrounds_its_sensor_and_an_object_does_not():
-    assert sizes.surrounds(_sweep(0), np.zeros(3))
-    assert not sizes.surrounds(_object(0), np.zeros(3))  # outside its bounding box
-    centred = _object(0) - [2.0, 0.0, 0.0]  # around its own centre: inside the box, but all points near as far
-    assert not sizes.surrounds(np.concatenate([centred, -centred]), np.zeros(3))
+def test_a_sweep_is_taken_from_its_origin_and_an_object_is_not():
+    assert sizes.taken_from(_sweep(0), np.zeros(3)) and sizes.inside(_sweep(0), np.zeros(3))
+    assert not sizes.taken_from(_object(0), np.zeros(3))  # a scanner far away: every point at one distance
+    assert not sizes.inside(_object(0), np.zeros(3))
+    shape, _ = synthetic_shape(seed=3, n=4000)  # a surface around its own centre, evenly sampled
+    assert not sizes.taken_from(shape - shape.mean(axis=0), np.zeros(3))
+    assert not sizes.taken_from(_sweep(0) + [512_000.0, 4_100_000.0, 120.0], np.zeros(3))  # in a grid: not there
 
 
 def test_sensors_auto_takes_the_frame_origin_of_a_sweep_only():
@@ -58,7 +65,7 @@ def test_the_voxel_is_a_scene_share_when_every_sensor_is_surrounded_else_an_obje
     assert scene and voxel == pytest.approx(sizes.SCENE_RELATIVE_VOXEL / sizes.OBJECT_RELATIVE_VOXEL
                                             * sizes.voxel(sweeps, [None, None], None)[0])
     assert sizes.voxel(sweeps, [None, None], None)[1] is False
-    assert sizes.voxel(sweeps, [np.zeros(3), np.array([100.0, 0, 0])], None)[1] is False  # one sensor outside
+    assert sizes.voxel(sweeps, [np.zeros(3), np.array([0.0, 0.0, 100.0])], None)[1] is False  # one sensor outside
     assert sizes.voxel(sweeps, origin, 0.25) == (0.25, True)  # the caller's voxel stands
     assert sizes.plane_residual(True) < sizes.plane_residual(False)
 

@@ -57,7 +57,7 @@ import numpy as np
 from rpmnet_jax import config as config_lib, stopwatch
 from rpmnet_jax.geometry import cloud, normals as normals_lib, offsets, sampling, scoring, threads
 from rpmnet_jax.multiway import candidate_pairs, edge_doubt, edges as edges_lib, joint_refine, options as options_lib
-from rpmnet_jax.multiway import pair_engine, pose_graph, sizes
+from rpmnet_jax.multiway import pair_engine, pose_graph, sizes, visibility
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment
 from rpmnet_jax.weights import loading
@@ -125,16 +125,36 @@ def _prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="a
     return Prepared(scans, voxel, seen_from, scene)
 
 
-def _screened(answers_per_pair, max_dist: float, good, reject: bool):
+def _screened(answers_per_pair, max_dist: float, good, reject: bool, visible=None):
     """Step 2's classical answers of each pair through the edge doubt model: (the good answers of each pair,
-    less those with ``p_wrong ≥ reject_threshold`` when ``reject``; ``{id(edge): p_wrong}`` of those)."""
+    less those with ``p_wrong ≥ reject_threshold`` when ``reject`` and those ``visible(edge)`` refuses (an
+    answer that puts one scan in the space the other's sensor saw through); ``{id(edge): p_wrong}`` of those)."""
     model = edge_doubt.load()
     found, p_of = [], {}
     for answers, p in zip(answers_per_pair, edge_doubt.p_wrong_of_pairs(answers_per_pair, max_dist, model)):
-        kept = [(e, float(q)) for e, q in zip(answers, p) if good(e) and not (reject and q >= model.reject_threshold)]
+        kept = [(e, float(q)) for e, q in zip(answers, p) if good(e) and not (reject and q >= model.reject_threshold)
+                and (visible is None or visible(e))]
         found.append([e for e, _ in kept])
         p_of.update((id(e), q) for e, q in kept)
     return found, p_of
+
+
+def _free_space_check(scans, sensors, max_dist):
+    """``visible(edge) -> bool``: whether the edge keeps each scan out of the other's free space
+    (:mod:`rpmnet_jax.multiway.visibility`); edges between scans without known sensors pass."""
+    images = {}
+
+    def image(k):
+        if k not in images:
+            images[k] = visibility.range_image(scans[k].points, sensors[k])
+        return images[k]
+
+    def visible(e) -> bool:
+        if sensors[e.source] is None or sensors[e.target] is None:
+            return True
+        return visibility.violation(scans[e.source].points, image(e.source), scans[e.target].points,
+                                    image(e.target), e.transform, max_dist) <= visibility.MAX_FREE_SPACE_SHARE
+    return visible
 
 
 def _resting_on_doubt(num_scans: int, kept_edges, p_of: dict, anchor: int, threshold: float | None = None) -> list:
@@ -307,7 +327,8 @@ def _align_scans(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg
     if o.classical:
         with clock.stage("classical"):  # 2. every candidate pair: FPFH + RANSAC, a short ICP; the edge doubt
             found, p_of = _screened(engine.classical_edges(pairs, ticker("classical edges")), max_dist,
-                                    lambda e: good(e, o.min_fitness), o.edge_doubt == "reject")
+                                    lambda e: good(e, o.min_fitness), o.edge_doubt == "reject",
+                                    _free_space_check(scans, seen_from, max_dist))
             counts["classical"] = len(pairs)
             edges = [e for answers in found for e in answers]  # a symmetric pair's answers: the graph chooses
         labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
