@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from conftest import synthetic_shape
-from rpmnet_jax.geometry import normals
+from rpmnet_jax.geometry import normals, sensors
 from rpmnet_jax.multiway import sizes
 
 
@@ -32,13 +32,13 @@ def _object(seed: int) -> np.ndarray:
 
 
 def test_a_sweep_is_taken_from_its_origin_and_an_object_is_not():
-    assert sizes.taken_from(_sweep(0), np.zeros(3)) and sizes.inside(_sweep(0), np.zeros(3))
-    assert not sizes.taken_from(_object(0), np.zeros(3))  # a scanner far away: every point at one distance
-    assert not sizes.inside(_object(0), np.zeros(3))
+    assert sensors.taken_from(_sweep(0), np.zeros(3)) and sensors.inside(_sweep(0), np.zeros(3))
+    assert not sensors.taken_from(_object(0), np.zeros(3))  # a scanner far away: every point at one distance
+    assert not sensors.inside(_object(0), np.zeros(3))
     shape, _ = synthetic_shape(seed=0, n=4000)  # a surface around its own centre, evenly sampled (a long one,
     # far points 4× as far as near ones, would look like a sweep: viewpoints="none" is for those)
-    assert not sizes.taken_from(shape - shape.mean(axis=0), np.zeros(3))
-    assert not sizes.taken_from(_sweep(0) + [512_000.0, 4_100_000.0, 120.0], np.zeros(3))  # in a grid: not there
+    assert not sensors.taken_from(shape - shape.mean(axis=0), np.zeros(3))
+    assert not sensors.taken_from(_sweep(0) + [512_000.0, 4_100_000.0, 120.0], np.zeros(3))  # in a grid: not there
 
 
 def test_sensors_auto_takes_the_frame_origin_of_a_sweep_only():

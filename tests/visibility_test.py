@@ -4,7 +4,7 @@ furniture lands in it; the six stations placed by ``align_scans`` with the check
 import numpy as np
 
 from rpmnet_jax.data import rooms
-from rpmnet_jax.multiway import visibility
+from rpmnet_jax.geometry import visibility
 
 
 def _stations():
@@ -15,13 +15,13 @@ def _stations():
 def test_the_right_answer_keeps_out_of_free_space_and_the_half_turn_does_not():
     a, b, truth = _stations()
     images = [visibility.range_image(s.points, np.zeros(3)) for s in (a, b)]
-    right = visibility.violation(a.points, images[0], b.points, images[1], truth, 0.25)
+    right = visibility.violation(a.points, images[0], b.points, images[1], truth, 0.5)
     turn = np.eye(4)
     turn[:3, :3] = np.diag([-1.0, -1.0, 1.0])  # half a turn about the room's vertical through its centre
     centre = np.array([rooms.SIZE[0] / 2, rooms.SIZE[1] / 2, 0.0])
     turn[:3, 3] = centre - turn[:3, :3] @ centre
     flipped = np.linalg.inv(b.pose) @ turn @ a.pose
-    wrong = visibility.violation(a.points, images[0], b.points, images[1], flipped, 0.25)
+    wrong = visibility.violation(a.points, images[0], b.points, images[1], flipped, 0.5)
     print(right, wrong)
     assert right <= 0.01 and wrong > 3 * right  # the half turn's furniture (measured 0.0065 and 0.026)
 

@@ -55,14 +55,15 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
-from rpmnet_jax.geometry import cloud, normals as normals_lib, offsets, sampling, scoring, threads
+from rpmnet_jax.geometry import cloud, normals as normals_lib, offsets, sampling, scoring, threads, visibility
 from rpmnet_jax.multiway import candidate_pairs, edge_doubt, edges as edges_lib, joint_refine, options as options_lib
-from rpmnet_jax.multiway import pair_engine, pose_graph, sizes, visibility
+from rpmnet_jax.multiway import pair_engine, pose_graph, sizes
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment
 from rpmnet_jax.weights import loading
 
 MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
+FREE_SPACE_MARGIN = 2.0  # the free-space check's margin, × the correspondence distance (noise, the bins' spread)
 NETWORK_ICP_POINTS = 1500  # the short ICP of a pair edge (icp.NETWORK_EDGE), source points per candidate pair
 NETWORK_NOISE_SCALE = 3.0  # the pair edges' short ICP is coarser: their noise floor is this many times larger
 
@@ -141,7 +142,7 @@ def _screened(answers_per_pair, max_dist: float, good, reject: bool, visible=Non
 
 def _free_space_check(scans, sensors, max_dist):
     """``visible(edge) -> bool``: whether the edge keeps each scan out of the other's free space
-    (:mod:`rpmnet_jax.multiway.visibility`); edges between scans without known sensors pass."""
+    (:mod:`rpmnet_jax.geometry.visibility`); edges between scans without known sensors pass."""
     images = {}
 
     def image(k):
@@ -153,7 +154,8 @@ def _free_space_check(scans, sensors, max_dist):
         if sensors[e.source] is None or sensors[e.target] is None:
             return True
         return visibility.violation(scans[e.source].points, image(e.source), scans[e.target].points,
-                                    image(e.target), e.transform, max_dist) <= visibility.MAX_FREE_SPACE_SHARE
+                                    image(e.target), e.transform, FREE_SPACE_MARGIN * max_dist
+                                    ) <= visibility.MAX_FREE_SPACE_SHARE
     return visible
 
 

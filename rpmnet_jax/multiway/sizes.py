@@ -11,34 +11,24 @@ The voxel is the caller's, else a share of the median robust scan radius
   and its structure (kerbs, poles, facades) is finer for its size than an object's.
 
 Sensors (``viewpoints`` of :func:`rpmnet_jax.align_scans`): ``"auto"`` (default) takes a scan's frame origin as its
-sensor when the scan looks taken from there (:func:`taken_from`): it surrounds the origin as a LiDAR sweep or a
-scanner station does, or its points lie farther apart the farther they are from the origin, as a scanner's angular
-sampling makes them (an RGB-D frame, a station). A whole, elongated object centred on its frame origin can look
-like it surrounds it (its far points 4× as far as its near ones): pass ``"none"`` for such objects; ``"origin"``: every frame origin; ``"none"``: no sensor (normals face away
-from each scan's centroid: closed objects); or one ``(3,)`` position per scan (``None`` for a scan without), in
-that scan's coordinates.
+sensor when the scan looks taken from there (:func:`rpmnet_jax.geometry.sensors.taken_from`: it surrounds the
+origin, as a LiDAR sweep or a scanner station does, or its points lie farther apart the farther they are from it,
+as a scanner's angular sampling makes them; a whole, elongated object centred on its frame origin can look like it
+surrounds it: pass ``"none"`` for such objects); ``"origin"``: every frame origin; ``"none"``: no sensor (normals
+face away from each scan's centroid: closed objects); or one ``(3,)`` position per scan (``None`` for a scan
+without), in that scan's coordinates.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from rpmnet_jax.geometry import cloud, kdtree
+from rpmnet_jax.geometry import cloud, sensors as sensors_lib
 
 OBJECT_RELATIVE_VOXEL = 0.02  # × the median robust scan radius: objects (chosen on the 10 bunny scans; tuning data)
 # kitti_04's 45 tune pairs (10 sweeps, radius 53 m): at 2% (1.07 m) 30 have a right classical answer and 13 wrong
 # ones are accepted; at 0.5 m 44 and 0; at 0.3 m 40 and 1. Chosen on that tune part (tuning data: not held-out)
 SCENE_RELATIVE_VOXEL = 0.01
-# A scan is taken from its frame origin when it surrounds it (the origin inside the scan's box, the far points at
-# least SURROUND_RATIO × as far as the near ones: KITTI sweeps 4.5×, statues around a turntable's origin 1.4-2.9×)
-# or when its spacing grows with the distance from it (slope at least SENSOR_SLOPE: the desk's RGB-D frames
-# 0.53-0.65, simulated room stations 1.8-2.3; statues around their turntable's origin -0.27-0.36, the bunny's
-# highest; random subsets of LiDAR sweeps only 0.15-0.33: the subset evens the spacing out). Chosen between those
-# (the benchmark's sets, the bunny's 11 scans, the room; tuning data: not held-out)
-SURROUND_RATIO = 3.0
-SENSOR_SLOPE = 0.45
-SENSOR_RANGE_RATIO = 1.5  # an origin far from every point (a national grid's) sees them all at one distance
-SLOPE_SAMPLE = 2000  # points whose spacing is measured
 # Every other size is a multiple of the voxel. At the object voxel these are the object shares of the radius used
 # before: the FPFH radius 0.3 and the RANSAC distance 0.075 (Open3D's recipe on unit-sphere clouds), the
 # correspondence distance 0.05 (alignment.DEFAULT_RELATIVE_DISTANCE)
@@ -51,34 +41,6 @@ DISTANCE_VOXELS = 2.5  # the correspondence distance (fitness, overlap, ICP gate
 OBJECT_PLANE_RESIDUAL = 0.1
 SCENE_PLANE_RESIDUAL = 0.06
 VIEWPOINTS = ("auto", "origin", "none")
-
-
-def taken_from(points: np.ndarray, origin: np.ndarray) -> bool:
-    """Whether ``points (N, 3)`` look taken by a scanner at ``origin (3,)``: they surround it, or their spacing
-    grows with the distance from it (see the module docstring and the constants)."""
-    rows = np.random.default_rng(0).choice(len(points), min(SLOPE_SAMPLE, len(points)), replace=False)
-    distance = np.linalg.norm(points[rows] - origin, axis=1)
-    near, far = np.quantile(distance, [0.1, 0.9])
-    if not far >= SENSOR_RANGE_RATIO * near:
-        return False
-    if far >= SURROUND_RATIO * near and inside(points, origin):
-        return True
-    spacing = kdtree.KdTree(points).query(points[rows], k=2)[0][:, 1]
-    ok = (spacing > 0) & (distance > 0)
-    x, y = np.log(distance[ok]), np.log(spacing[ok])
-    farther = x > np.median(x)  # medians of the far and the near half: a few stray points do not tilt it
-    if farther.all() or not farther.any():
-        return False
-    rise = np.median(y[farther]) - np.median(y[~farther])
-    return bool(rise >= SENSOR_SLOPE * (np.median(x[farther]) - np.median(x[~farther])))
-
-
-def inside(points: np.ndarray, sensor: np.ndarray) -> bool:
-    """Whether ``sensor (3,)`` lies inside the bounding box of ``points (N, 3)`` (of their 1st to 99th percentiles:
-    a stray point does not widen it): a scan taken from inside a scene (a room, a street), not of an object in
-    front of it."""
-    lo, hi = np.quantile(points, [0.01, 0.99], axis=0)
-    return bool(np.all((lo < sensor) & (sensor < hi)))
 
 
 def sensors(clouds, viewpoints) -> list:
@@ -98,7 +60,8 @@ def _sensor(i: int, points: np.ndarray, viewpoint) -> np.ndarray | None:
         if viewpoint not in VIEWPOINTS:
             raise ValueError(f"viewpoints must be one of {VIEWPOINTS}, positions or None, got {viewpoint!r}")
         origin = np.zeros(3)
-        return origin if viewpoint == "origin" or (viewpoint == "auto" and taken_from(points, origin)) else None
+        taken = viewpoint == "origin" or (viewpoint == "auto" and sensors_lib.taken_from(points, origin))
+        return origin if taken else None
     v = None if viewpoint is None else np.asarray(viewpoint, np.float64)
     if v is not None and (v.shape != (3,) or not np.all(np.isfinite(v))):
         raise ValueError(f"viewpoint of scan {i}: expected three finite coordinates, got {v}")
@@ -109,7 +72,7 @@ def voxel(clouds, sensors_, given: float | None) -> tuple[float, bool]:
     """``(voxel, scene)``: the caller's ``given`` voxel, else the share of the median robust radius of ``clouds``
     for objects or, when every known sensor lies inside its scan's box (and one is known), for a scene."""
     scene = any(s is not None for s in sensors_) and all(
-        inside(c, s) for c, s in zip(clouds, sensors_) if s is not None)
+        sensors_lib.inside(c, s) for c, s in zip(clouds, sensors_) if s is not None)
     if given is not None:
         return float(given), scene
     share = SCENE_RELATIVE_VOXEL if scene else OBJECT_RELATIVE_VOXEL

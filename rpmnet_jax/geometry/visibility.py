@@ -14,8 +14,6 @@ from typing import NamedTuple
 import numpy as np
 
 BIN_DEG = 1.0  # direction bins of the range image
-MARGIN_DISTANCES = 2.0  # a point is in free space when nearer than the bin's range by this × the correspondence
-# distance (noise, the bin's spread of ranges)
 # The largest share of an answer's points (either way round) in the other scan's free space that an edge may have.
 # kitti_04's tune pairs: right answers up to 0.028 (moving cars), wrong ones from 0.035; the simulated room's six
 # stations (data/rooms.py, seed 0): right answers up to 0.006, half-turned ones 0.05-0.35. Chosen between them
@@ -58,11 +56,11 @@ def free_space_share(moved: np.ndarray, image: RangeImage, margin: float) -> flo
 
 
 def violation(src_points: np.ndarray, src_image: RangeImage, ref_points: np.ndarray, ref_image: RangeImage,
-              transform: np.ndarray, max_distance: float) -> float:
+              transform: np.ndarray, margin: float) -> float:
     """The larger free-space share of an answer ``transform (4, 4)`` (source → reference frame): the source's
-    points in the reference's free space, and the reference's in the source's."""
+    points in the reference's free space, and the reference's in the source's (``margin``: how much nearer than
+    the range a point must lie; noise and the bins' spread of ranges stay under it)."""
     t = np.asarray(transform, np.float64)
     inv = np.linalg.inv(t)
-    margin = MARGIN_DISTANCES * max_distance
     return max(free_space_share(src_points @ t[:3, :3].T + t[:3, 3], ref_image, margin),
                free_space_share(ref_points @ inv[:3, :3].T + inv[:3, 3], src_image, margin))
