@@ -34,6 +34,12 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    from what the steps above measured (:mod:`rpmnet_jax.pairwise.doubt`), ``likely_wrong`` whether it reaches
    the shipped model's threshold; it reads the answer and never changes it.
 
+Scans taken from their frame origins (LiDAR sweeps, scanner stations, RGB-D frames:
+:func:`rpmnet_jax.geometry.sensors.taken_from`, both clouds): the best distinct candidate that keeps each cloud out
+of the space the other's sensor saw through (:mod:`rpmnet_jax.geometry.visibility`) is the answer (a room's half
+turn fits its walls as well as the truth and puts its furniture there); when none does, the answer is
+``likely_wrong``.
+
 A cloud of more than ``prepare.MAX_POINTS`` (200,000) finite rows is registered and scored on a seeded random
 subset of that many (what Open3D's recipe gets from voxel downsampling first): ``fitness``, ``inlier_rmse`` and
 ``correspondences`` are then over the subset's rows; ``aligned`` still has every row of the caller's source.
@@ -53,7 +59,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
-from rpmnet_jax.geometry import scoring, threads
+from rpmnet_jax.geometry import sampling as sampling_lib, scoring, sensors, threads, visibility
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import candidates as candidates_lib, global_search, options as options_lib, prepare
 from rpmnet_jax.pairwise import doubt, starts as starts_lib
@@ -219,6 +225,7 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
     """The :class:`Alignment` of the best selected candidate, in the caller's units and rows: its fitness, RMSE and
     correspondences on the full clouds and the point-to-plane information over them (the reference's normals
     where the caller gave none: those the dense samples estimated, and the missing rows)."""
+    selection, blocked = _free_space_first(inputs, selection)
     pair, best = inputs.pair, selection.ranked[0]
     answers = tuple(Answer(pair.to_callers_units(c.transform[:3]), float(c.score[0]), float(c.score[1]),
                            -float(c.score[2]) * pair.scale, c.init, tuple(support))
@@ -238,4 +245,28 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
                   best.num_iterations, inputs.max_distance, best.init, clock.timings(), answers,
                   selection.ambiguous, information)
     p, likely = doubt.p_wrong(a)  # 6. how likely the answer is wrong: read off it, never changes it
-    return a._replace(p_wrong=p, likely_wrong=likely)
+    return a._replace(p_wrong=p, likely_wrong=likely or blocked)
+
+
+def _free_space_first(inputs: prepare.Inputs, selection: candidates_lib.Selection) -> tuple:
+    """When both clouds look taken from their frame origins (:func:`rpmnet_jax.geometry.sensors.taken_from`: LiDAR
+    sweeps, scanner stations, RGB-D frames): the selection with its best candidate that keeps each cloud out of the
+    space the other's sensor saw through (:mod:`rpmnet_jax.geometry.visibility`) moved to the front (a room's half
+    turn puts its furniture there), and whether the answer still does (no candidate keeps out: it is then reported
+    ``likely_wrong``). Otherwise the selection as it is, and False."""
+    pair, origin = inputs.pair, np.zeros(3)
+    if not (sensors.taken_from(pair.src, origin) and sensors.taken_from(pair.ref, origin)):
+        return selection, False
+    # on a voxel grid (space weighed evenly: a scanner's dense floor around it would dilute the share), the margin
+    # and the cube as align_scans' scenes have them (2 × 2.5 voxels)
+    src, ref = (sampling_lib.voxel_downsample(c, None, inputs.max_distance / 5)[0] for c in (pair.src, pair.ref))
+    images = visibility.range_image(src, origin), visibility.range_image(ref, origin)
+    clear = [visibility.violation(src, images[0], ref, images[1], pair.to_callers_units(c.transform[:3]),
+                                  inputs.max_distance)
+             <= visibility.MAX_FREE_SPACE_SHARE for c in selection.ranked]
+    if clear[0] or not any(clear):
+        return selection, not clear[0]
+    k = clear.index(True)
+    order = [k] + [i for i in range(len(clear)) if i != k]
+    support = tuple(selection.support[i] for i in order) if selection.support else selection.support
+    return selection._replace(ranked=[selection.ranked[i] for i in order], support=support), False
