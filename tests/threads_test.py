@@ -40,18 +40,18 @@ print(json.dumps({"layer": numba.threading_layer(), "before": before, "seen": [s
 """
 
 
-@pytest.mark.parametrize("layer", ["default", "workqueue"])
+@pytest.mark.parametrize("layer", ["omp", "tbb", "workqueue"])
 def test_two_threads_calling_align_at_once_get_the_serial_answers(layer):
-    """A fresh process (as a Dask worker with two threads): both threads inside ``align`` at once, under the
-    default layer and under Numba's workqueue layer (which cannot run two parallel loops at once: it aborted the
-    process before ``compiled_loops`` took one caller at a time there); BLAS stays on one thread after."""
-    env = {**os.environ, "PYTHONPATH": REPO}
-    if layer == "workqueue":
-        env["NUMBA_THREADING_LAYER"] = "workqueue"
+    """A fresh process (as a Dask worker with two threads): both threads inside ``align`` at once, under each of
+    Numba's threading layers (workqueue cannot run two parallel loops at once: it aborted the process before
+    ``compiled_loops`` took one caller at a time there); BLAS stays on one thread after."""
+    env = {**os.environ, "PYTHONPATH": REPO, "NUMBA_THREADING_LAYER": layer}
     out = subprocess.run([sys.executable, "-c", TWO_THREADS], capture_output=True, text=True, timeout=600, env=env)
+    if layer != "workqueue" and out.returncode != 0 and "No threading layer could be loaded" in out.stderr:
+        pytest.skip(f"Numba's {layer} layer is not installed here")
     assert out.returncode == 0, out.stderr[-2000:]
     got = json.loads(out.stdout.strip().splitlines()[-1])
-    assert layer == "default" or got["layer"] == "workqueue"
+    assert got["layer"] == layer
     assert got["same"] == [True, True]
     assert got["before"] and got["seen"] == [[1] * len(got["before"])] * 2 and got["after"] == [1] * len(got["before"])
 
