@@ -67,3 +67,19 @@ def test_a_bad_folder_is_a_value_error(tmp_path):
         pair_cache.PairCache(tmp_path / "file")
     with pytest.raises(ValueError, match="does not exist"):
         pair_cache.PairCache(tmp_path / "missing" / "cache")
+
+
+def test_a_change_to_the_code_that_computes_an_edge_starts_new_keys(tmp_path, monkeypatch):
+    """The key holds a digest of the source of the code an edge depends on: one constant changed there (as an
+    upgrade would) gives every edge a new name, so a resumed run recomputes instead of mixing old and new edges."""
+    assert any(p.endswith(os.path.join("geometry", "icp.py")) for p in pair_cache.source_files())
+    assert any(p.endswith(os.path.join("multiway", "edges.py")) for p in pair_cache.source_files())
+    module = tmp_path / "constants.py"
+    module.write_text("DISTINCT_DEG = 10.0\n")
+    monkeypatch.setattr(pair_cache, "source_files", lambda: [str(module)])
+    monkeypatch.setattr(pair_cache, "_code", {})
+    before = pair_cache.edge_name("classical", 0, 1, "a", "b", 0.1)
+    assert pair_cache.edge_name("classical", 0, 1, "a", "b", 0.1) == before  # the same code: the same name
+    module.write_text("DISTINCT_DEG = 12.0\n")
+    monkeypatch.setattr(pair_cache, "_code", {})  # a new process after the upgrade
+    assert pair_cache.edge_name("classical", 0, 1, "a", "b", 0.1) != before

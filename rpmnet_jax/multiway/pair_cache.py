@@ -3,8 +3,9 @@ atomically (a temporary file in the folder, then ``os.replace``), read back with
 
 A result's key is a digest of everything that decides it: the stage, the pair ``(i, j)``, both scans'
 contents (their downsampled points and normals: a changed scan file gives new keys, so its pairs are
-recomputed), the settings and seed, the network's parameters (network edges) and the start pose (refinement
-edges). A file whose key matches is that result, bit for bit.
+recomputed), the settings and seed, the network's parameters (network edges), the start pose (refinement
+edges) and the source of the code that computes it (:data:`RESULT_CODE`: an upgrade starts new keys). A file
+whose key matches is that result, bit for bit.
 """
 
 from __future__ import annotations
@@ -19,6 +20,14 @@ import numpy as np
 from rpmnet_jax.multiway import edges as edges_lib
 
 CACHE_VERSION = 3  # part of every key: a new layout or meaning of the files starts a new set of keys
+# The package's code an edge's value depends on (folders and files under rpmnet_jax/): its source is part of every
+# key, so an upgrade that changes a constant or a line there (RANSAC's draws, the ICP's gates, DISTINCT_DEG, the
+# features, the network) starts a new set of keys, and a resumed run never mixes old edges with new ones. More than
+# strictly needed (an edit to a docstring there invalidates too): a cache is cheap to refill, a wrong edge is not.
+RESULT_CODE = ("config.py", "registration.py", "geometry", "ops", "nn", "pairwise", "multiway/edges.py",
+               "multiway/pair_engine.py", "multiway/pair_cache.py")
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+_code = {}  # the digest, once per process
 
 
 def digest(*parts) -> str:
@@ -33,6 +42,29 @@ def digest(*parts) -> str:
             h.update(repr(part).encode())
         h.update(b"\x00")
     return h.hexdigest()
+
+
+def source_files() -> list:
+    """The ``.py`` files of :data:`RESULT_CODE`, sorted, as paths under the package."""
+    files = []
+    for part in RESULT_CODE:
+        path = os.path.join(_PACKAGE, part)
+        if os.path.isdir(path):
+            files += [os.path.join(root, f) for root, _, names in os.walk(path) for f in names if f.endswith(".py")]
+        else:
+            files.append(path)
+    return sorted(files)
+
+
+def code_digest() -> str:
+    """Digest of the source of :func:`source_files` (their paths under the package and their bytes)."""
+    if "digest" not in _code:
+        parts = []
+        for path in source_files():
+            with open(path, "rb") as f:
+                parts += [os.path.relpath(path, _PACKAGE), np.frombuffer(f.read(), np.uint8)]
+        _code["digest"] = digest(*parts)
+    return _code["digest"]
 
 
 def scan_digest(scan: edges_lib.Scan) -> str:
@@ -106,4 +138,4 @@ class PairCache:
 
 def edge_name(stage: str, i: int, j: int, *key_parts) -> str:
     """File name (no extension) of the edge ``i → j`` of ``stage`` under the key ``key_parts``."""
-    return f"{stage}-{i}-{j}-{digest(CACHE_VERSION, stage, i, j, *key_parts)[:40]}"
+    return f"{stage}-{i}-{j}-{digest(CACHE_VERSION, code_digest(), stage, i, j, *key_parts)[:40]}"
