@@ -34,11 +34,11 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    from what the steps above measured (:mod:`rpmnet_jax.pairwise.doubt`), ``likely_wrong`` whether it reaches
    the shipped model's threshold; it reads the answer and never changes it.
 
-Scans taken from their frame origins (LiDAR sweeps, scanner stations, RGB-D frames:
-:func:`rpmnet_jax.geometry.sensors.taken_from`, both clouds): the best distinct candidate that keeps each cloud out
-of the space the other's sensor saw through (:mod:`rpmnet_jax.geometry.visibility`) is the answer (a room's half
-turn fits its walls as well as the truth and puts its furniture there); when none does, the answer is
-``likely_wrong``.
+Scans taken from their frame origins (scanner stations, RGB-D frames, full-density sweeps: their spacing grows
+with the distance from it, :func:`rpmnet_jax.geometry.sensors.taken_from`, both clouds): the best distinct
+candidate that keeps each cloud out of the space the other's sensor saw through
+(:mod:`rpmnet_jax.geometry.visibility`) is the answer (a room's half turn fits its walls as well as the truth and
+puts its furniture there); when none does, the answer is ``likely_wrong``.
 
 A cloud of more than ``prepare.MAX_POINTS`` (200,000) finite rows is registered and scored on a seeded random
 subset of that many (what Open3D's recipe gets from voxel downsampling first): ``fitness``, ``inlier_rmse`` and
@@ -249,13 +249,14 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
 
 
 def _free_space_first(inputs: prepare.Inputs, selection: candidates_lib.Selection) -> tuple:
-    """When both clouds look taken from their frame origins (:func:`rpmnet_jax.geometry.sensors.taken_from`: LiDAR
-    sweeps, scanner stations, RGB-D frames): the selection with its best candidate that keeps each cloud out of the
+    """When both clouds look taken from their frame origins by their spacing (:func:`rpmnet_jax.geometry.sensors.
+    taken_from` without the surround rule, which a whole object centred on its origin can meet: scanner stations,
+    RGB-D frames, full-density sweeps): the selection with its best candidate that keeps each cloud out of the
     space the other's sensor saw through (:mod:`rpmnet_jax.geometry.visibility`) moved to the front (a room's half
     turn puts its furniture there), and whether the answer still does (no candidate keeps out: it is then reported
     ``likely_wrong``). Otherwise the selection as it is, and False."""
     pair, origin = inputs.pair, np.zeros(3)
-    if not (sensors.taken_from(pair.src, origin) and sensors.taken_from(pair.ref, origin)):
+    if not all(sensors.taken_from(c, origin, surround=False) for c in (pair.src, pair.ref)):
         return selection, False
     # on a voxel grid (space weighed evenly: a scanner's dense floor around it would dilute the share), the margin
     # and the cube as align_scans' scenes have them (2 × 2.5 voxels)
