@@ -4,8 +4,8 @@ points), and whether that point lies inside the scan (a scene seen from inside, 
 A scan is taken from its frame origin when it surrounds it (the origin inside the scan's box, its far points at
 least ``SURROUND_RATIO`` × as far as its near ones), or when its points lie farther apart the farther they are from
 the origin, as a scanner's angular sampling makes them (the log-log slope of spacing over distance, from the
-medians of the near and the far half, at least ``SENSOR_SLOPE``). A whole, elongated object centred on its frame
-origin can look like it surrounds it (its far points 4× as far as its near ones).
+medians of the near and the far half, at least ``SENSOR_SLOPE``). A whole object centred on its frame origin often
+surrounds it too (97 of ModelNet40's 150 test shapes): ``align`` uses the spacing rule alone.
 """
 
 from __future__ import annotations
