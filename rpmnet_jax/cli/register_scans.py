@@ -145,7 +145,7 @@ def main(argv=None) -> int:
     from rpmnet_jax import stopwatch
     from rpmnet_jax.geometry import sampling
     from rpmnet_jax.io import clouds as cloud_io, poses as poses_io
-    from rpmnet_jax.multiway import options as options_lib, scan_alignment
+    from rpmnet_jax.multiway import options as options_lib, pair_engine, scan_alignment
     from rpmnet_jax.ops import se3
     from rpmnet_jax.weights import loading
 
@@ -183,6 +183,9 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as e:  # bad input, or a file that is missing, a folder, or unreadable
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
+    except pair_engine.PairTaskError as e:  # a pair that kills the workers running it
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 1
     names = [os.path.basename(p) for p in paths]
     for note in notes:
         print(note)

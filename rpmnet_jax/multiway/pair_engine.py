@@ -120,6 +120,11 @@ def check_scheduler(scheduler):
                      f"got {scheduler!r}")
 
 
+class PairTaskError(RuntimeError):
+    """A pair task that the Dask scheduler gave up on (it killed every worker that ran it); the message names its
+    pairs in one line."""
+
+
 class PairEngine:
     """Runs pair tasks on ``scheduler`` (see :func:`check_scheduler`), keeping results in ``cache`` (a folder or
     a :class:`~rpmnet_jax.multiway.pair_cache.PairCache`; ``None``: none). A context manager: leaving it
@@ -270,14 +275,20 @@ class PairEngine:
         else:
             import distributed
 
-            futures = []
+            futures, needed = [], {}
             for fn, args, needs in tasks:
                 scans = {s: self._scan_futures[s] for s in sorted({s for p in needs for s in p})}
                 args = tuple(self._params_future if a is _PARAMS else a for a in args)
                 extra = {"compile_cache": self._compile_cache} if fn is network_chunk else {}
                 futures.append(self.client.submit(fn, scans, *args, pure=True, **extra))
+                needed[futures[-1].key] = needs
             for future in distributed.as_completed(futures):
-                new = future.result()
+                try:
+                    new = future.result()
+                except distributed.KilledWorker as e:  # the scheduler gave up on it: name the pairs, one line
+                    raise PairTaskError(f"the task of pairs {[tuple(p) for p in needed[future.key]]} killed the Dask "
+                                        "workers that ran it; the pairs finished before it are in the cache (if "
+                                        "any)") from e
                 finished(new)
                 advance(len(new))
         return [edges[tuple(p)] for p in pairs]
