@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from rpmnet_jax.ops import se3
+
 SHIFT_QUANTUM = 1.0  # the shift is rounded to whole caller's units: scans within half a unit of the origin (objects
 # in metres) are not moved at all, and a set moved by whole units (into a grid) is moved back by exactly as much, so
 # its scans reach every later step as the same numbers up to the rounding of the grid coordinates themselves
@@ -44,6 +46,5 @@ def unshift_information(information: np.ndarray, shift: np.ndarray) -> np.ndarra
     """``(6, 6)`` information of ``T' · Exp(ξ')`` (``ξ = (ω, v)``) in the moved frames → that of ``T · Exp(ξ)``
     in the caller's: ``ξ' = Ad(S(-shift)) ξ``, so ``Λ = Adᵀ Λ' Ad`` with ``Ad = [[I, 0], [-[shift]×, I]]``."""
     ad = np.eye(6)
-    x, y, z = shift
-    ad[3:, :3] = -np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    ad[3:, :3] = -se3.hat(np.asarray(shift, np.float64))
     return ad.T @ information @ ad

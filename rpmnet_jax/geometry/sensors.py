@@ -26,11 +26,13 @@ SENSOR_RANGE_RATIO = 1.5  # an origin far from every point (a national grid's) s
 SLOPE_SAMPLE = 2000  # points whose spacing is measured
 
 
-def taken_from(points: np.ndarray, origin: np.ndarray, surround: bool = True) -> bool:
+def taken_from(points: np.ndarray, origin: np.ndarray, surround: bool = True,
+               tree: kdtree.KdTree | None = None) -> bool:
     """Whether ``points (N, 3)`` look taken by a scanner at ``origin (3,)``: they surround it (with ``surround``),
     or their spacing grows with the distance from it (see the module docstring and the constants). Without
     ``surround`` a whole object centred on its origin is never taken for a scan (ModelNet40's test shapes: 97 of
-    150 surround their origin, their slopes are at most 0.14)."""
+    150 surround their origin, their slopes are at most 0.14). ``tree``: a k-d tree of ``points`` when there is
+    one."""
     rows = np.random.default_rng(0).choice(len(points), min(SLOPE_SAMPLE, len(points)), replace=False)
     distance = np.linalg.norm(points[rows] - origin, axis=1)
     near, far = np.quantile(distance, [0.1, 0.9])
@@ -38,7 +40,7 @@ def taken_from(points: np.ndarray, origin: np.ndarray, surround: bool = True) ->
         return False
     if surround and far >= SURROUND_RATIO * near and inside(points, origin):
         return True
-    spacing = kdtree.KdTree(points).query(points[rows], k=2)[0][:, 1]
+    spacing = (tree or kdtree.KdTree(points)).query(points[rows], k=2)[0][:, 1]
     ok = (spacing > 0) & (distance > 0)
     x, y = np.log(distance[ok]), np.log(spacing[ok])
     farther = x > np.median(x)  # medians of the far and the near half: a few stray points do not tilt it

@@ -141,6 +141,7 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
             reestimate_normals=reestimate_normals, centering=centering,
             icp=refine == "icp", dense_points=refine_options.points if (refine == "icp" or init != "local") else None,
             max_correspondence_distance=max_correspondence_distance, relative_distance=DEFAULT_RELATIVE_DISTANCE)
+        free_space = _free_space(inputs)  # scans taken from their frame origins: what each sensor saw, made once
     pair, dense, max_dist_unit = inputs.pair, inputs.dense, inputs.max_distance_unit
     cfg = cfg or config_lib.RPMNetConfig()
     if params is None and checkpoint is not None:  # a caller's checkpoint is checked (and refused) up front
@@ -171,7 +172,7 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
             and _needs_network(found, global_options)):
         with clock.stage("refine"):  # the answer the classical candidates give: kept when it is not in doubt
             selection = candidates_lib.select(found, dense, max_dist_unit, refine, refine_options)
-        classical_answer = _report(inputs, selection, src_points, clock)
+        classical_answer = _report(inputs, selection, src_points, clock, free_space)
         if _trusted(classical_answer, global_options):
             return classical_answer
     if init == "local" or (init == "auto" and _needs_network(found, global_options)):
@@ -190,7 +191,8 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
 
     with clock.stage("refine"):  # 4. select: the distinct answers, best first, the best one's refinement finished
         selection = candidates_lib.select(found, dense, max_dist_unit, refine, refine_options)
-    return _report(inputs, selection, src_points, clock)  # 5. report: in the caller's units, on the full clouds
+    # 5. report: in the caller's units, on the full clouds
+    return _report(inputs, selection, src_points, clock, free_space)
 
 
 def _trusted(answer: "Alignment", opts: options_lib.GlobalOptions) -> bool:
@@ -221,11 +223,11 @@ def _confirmed(found: list) -> bool:
 
 
 def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_points,
-            clock: stopwatch.Stopwatch) -> Alignment:
+            clock: stopwatch.Stopwatch, free_space) -> Alignment:
     """The :class:`Alignment` of the best selected candidate, in the caller's units and rows: its fitness, RMSE and
     correspondences on the full clouds and the point-to-plane information over them (the reference's normals
     where the caller gave none: those the dense samples estimated, and the missing rows)."""
-    selection, blocked = _free_space_first(inputs, selection)
+    selection, blocked = _free_space_first(inputs, selection, free_space)
     pair, best = inputs.pair, selection.ranked[0]
     answers = tuple(Answer(pair.to_callers_units(c.transform[:3]), float(c.score[0]), float(c.score[1]),
                            -float(c.score[2]) * pair.scale, c.init, tuple(support))
@@ -248,21 +250,29 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
     return a._replace(p_wrong=p, likely_wrong=likely or blocked)
 
 
-def _free_space_first(inputs: prepare.Inputs, selection: candidates_lib.Selection) -> tuple:
-    """When both clouds look taken from their frame origins by their spacing (:func:`rpmnet_jax.geometry.sensors.
-    taken_from` without the surround rule, which a whole object centred on its origin can meet: scanner stations,
-    RGB-D frames, full-density sweeps): the selection with its best candidate that keeps each cloud out of the
-    space the other's sensor saw through (:mod:`rpmnet_jax.geometry.visibility`) moved to the front (a room's half
-    turn puts its furniture there), and whether the answer still does (no candidate keeps out: it is then reported
-    ``likely_wrong``). Otherwise the selection as it is, and False."""
+def _free_space(inputs: prepare.Inputs) -> tuple | None:
+    """``(src grid, ref grid, their range images)`` when both clouds look taken from their frame origins by their
+    spacing (:func:`rpmnet_jax.geometry.sensors.taken_from` without the surround rule, which a whole object centred
+    on its origin can meet: scanner stations, RGB-D frames, full-density sweeps), else None. On a voxel grid (space
+    weighed evenly: a scanner's dense floor around it would dilute the share), the margin and the cube as
+    align_scans' scenes have them (2 × 2.5 voxels)."""
     pair, origin = inputs.pair, np.zeros(3)
-    if not all(sensors.taken_from(c, origin, surround=False) for c in (pair.src, pair.ref)):
-        return selection, False
-    # on a voxel grid (space weighed evenly: a scanner's dense floor around it would dilute the share), the margin
-    # and the cube as align_scans' scenes have them (2 × 2.5 voxels)
+    if not (sensors.taken_from(pair.src, origin, surround=False)
+            and sensors.taken_from(pair.ref, origin, surround=False, tree=inputs.ref_tree)):
+        return None
     src, ref = (sampling_lib.voxel_downsample(c, None, inputs.max_distance / 5)[0] for c in (pair.src, pair.ref))
-    images = visibility.range_image(src, origin), visibility.range_image(ref, origin)
-    clear = [visibility.violation(src, images[0], ref, images[1], pair.to_callers_units(c.transform[:3]),
+    return src, ref, visibility.range_image(src, origin), visibility.range_image(ref, origin)
+
+
+def _free_space_first(inputs: prepare.Inputs, selection: candidates_lib.Selection, free_space) -> tuple:
+    """With ``free_space`` (:func:`_free_space`): the selection with its best candidate that keeps each cloud out of
+    the space the other's sensor saw through (:mod:`rpmnet_jax.geometry.visibility`) moved to the front (a room's
+    half turn puts its furniture there), and whether the answer still does (no candidate keeps out: it is then
+    reported ``likely_wrong``). Otherwise the selection as it is, and False."""
+    if free_space is None:
+        return selection, False
+    src, ref, src_image, ref_image = free_space
+    clear = [visibility.violation(src, src_image, ref, ref_image, inputs.pair.to_callers_units(c.transform[:3]),
                                   inputs.max_distance)
              <= visibility.MAX_FREE_SPACE_SHARE for c in selection.ranked]
     if clear[0] or not any(clear):
