@@ -95,9 +95,11 @@ def test_candidates_file_holds_every_answer_exactly(tmp_path):
     assert got["candidates"][1]["score"] == 0.5 and got["candidates"][1]["inlier_rmse"] == 0.02
 
 
-@pytest.mark.parametrize("case,message", [("unknown_ext", "unknown point-cloud format"), ("missing", "no such file"),
+@pytest.mark.parametrize("case,message", [("unknown_ext", "unknown point-cloud format"),
+                                          ("missing", "no such file or folder"),
                                           ("missing_folder", "no such file or folder"),
-                                          ("folder", "is a folder"), ("empty", "empty"),
+                                          ("folder", "is a folder"), ("folder_no_ext", "is a folder"),
+                                          ("empty", "empty"),
                                           ("columns", "ambiguous"), ("garbage", "cannot read as PLY"),
                                           ("npz_names", "needs a 'points' array"),
                                           ("columns_on_las", "--columns applies to"), ("bad_column", "unknown column")])
@@ -107,6 +109,7 @@ def test_bad_files_are_one_line_cloud_errors(tmp_path, case, message):
         "missing": lambda: tmp_path / "nope.ply",
         "missing_folder": lambda: tmp_path / "scans",
         "folder": lambda: (tmp_path / "dir.ply").mkdir() or tmp_path / "dir.ply",
+        "folder_no_ext": lambda: (tmp_path / "scans").mkdir() or tmp_path / "scans",
         "empty": lambda: np.save(tmp_path / "e.npy", np.zeros((0, 3))) or tmp_path / "e.npy",
         "columns": lambda: np.save(tmp_path / "c.npy", np.zeros((5, 5))) or tmp_path / "c.npy",
         "garbage": lambda: (tmp_path / "g.ply").write_bytes(b"not a ply") and tmp_path / "g.ply",
@@ -130,5 +133,5 @@ def test_check_format_names_the_extension(tmp_path):
     (tmp_path / "cloud").write_text("1 2 3\n")
     with pytest.raises(cloud_io.CloudError, match="none"):  # a file without an extension
         cloud_io.check_format(str(tmp_path / "cloud"))
-    with pytest.raises(cloud_io.CloudError, match="no such file or folder"):  # a missing folder of scans
-        cloud_io.check_format(str(tmp_path / "scans"))
+    with pytest.raises(cloud_io.CloudError, match="none"):  # an output's name: whether it exists is no matter
+        cloud_io.check_format(str(tmp_path / "merged"))

@@ -113,22 +113,6 @@ def test_ply_and_pcd_names(tmp_path):
     np.testing.assert_array_equal(cloud.colours, rgb)
 
 
-def test_binary_pcd_packed_colour_with_alpha_keeps_every_red(tmp_path):
-    """PCL writes alpha 255 in the packed colour's top byte: 0xFFRRGGBB as a float32 is a NaN, a signalling one for
-    a red of 128–191; read through float64 it came back quiet, its red changed (128 -> 192, 160 -> 224)."""
-    red = np.array([16, 128, 160, 192], np.uint32)
-    packed = (np.uint32(255) << 24) | (red << 16) | (np.uint32(7) << 8) | np.uint32(9)
-    table = np.zeros(4, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
-    table["x"] = np.arange(4)
-    table["rgb"] = packed
-    header = ("VERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
-              "WIDTH 4\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 4\nDATA binary\n")
-    (tmp_path / "alpha.pcd").write_bytes(header.encode() + table.tobytes())
-    cloud = cloud_io.read(str(tmp_path / "alpha.pcd"))
-    np.testing.assert_array_equal(cloud.colours, np.c_[red, np.full(4, 7), np.full(4, 9)])
-    np.testing.assert_array_equal(cloud.points[:, 0], np.arange(4))
-
-
 def test_cloud_moved_and_rows():
     pts, rgb = _xyzrgb(5)
     cloud = columns.Cloud(pts, np.tile([0.0, 0.0, 1.0], (5, 1)), rgb, np.arange(5.0))

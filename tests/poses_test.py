@@ -89,3 +89,23 @@ def test_conf_files_round_trip(tmp_path):
         scan_poses.write_poses(str(tmp_path / "bun.conf"), [f"{n}.ply" for n in true], np.stack(list(true.values())))
         again = scan_poses.read_poses(str(tmp_path / "bun.conf"))
         np.testing.assert_allclose(np.stack(list(again.values())), np.stack(list(true.values())), atol=1e-8)
+
+
+def test_conf_names_with_spaces_quotes_and_tabs_round_trip(tmp_path):
+    """A name that holds whitespace, ``"`` or ``\\`` is written quoted and reads back as it was (runs of spaces, a
+    leading space, a tab); plain names are written as the Stanford files have them; an unquoted name with spaces, as
+    a hand-written file may have, reads as everything before the seven numbers."""
+    rng = np.random.default_rng(2)
+    names = ["site  2  station 7.pcd", " lead.ply", 'say "hi".xyz', "tab\there.ply", "back\\slash.ply", "café 1.las",
+             "bun000.ply", "scans.e57#2"]
+    poses = np.stack([random_pose(rng) for _ in names])
+    scan_poses.write_poses(str(tmp_path / "p.conf"), names, poses)
+    lines = (tmp_path / "p.conf").read_text(encoding="utf-8").splitlines()
+    assert len(lines) == len(names) and lines[0].startswith('bmesh "site  2  station 7.pcd" ')
+    assert lines[-2].startswith("bmesh bun000.ply ") and lines[-1].startswith("bmesh scans.e57#2 ")
+    got = scan_poses.read_poses(str(tmp_path / "p.conf"))
+    assert list(got) == ["site  2  station 7", " lead", 'say "hi"', "tab\there", "back\\slash", "café 1", "bun000",
+                         "scans.e57#2"]
+    np.testing.assert_allclose(np.stack(list(got.values())), poses, atol=1e-12)
+    (tmp_path / "hand.conf").write_text("camera 0 0 0 0 0 0 1\n" + _conf_line("site 2\tstation 7", poses[0]))
+    assert list(scan_poses.read_poses(str(tmp_path / "hand.conf"))) == ["site 2\tstation 7"]

@@ -22,8 +22,6 @@ CloudError = cols.CloudError
 def check_format(path: str) -> str:
     """The extension of ``path``; ``CloudError`` when unknown, or when its reader is not installed (LAS, E57)."""
     ext = os.path.splitext(path)[1].lower()
-    if not ext and not os.path.exists(path):  # a missing folder of scans, or a file without an extension
-        raise CloudError(f"{path}: no such file or folder")
     if ext not in FORMATS:
         raise CloudError(f"{path}: unknown point-cloud format {ext or '(none)'!r}; use one of {', '.join(FORMATS)}")
     if ext in (".las", ".laz"):
@@ -39,13 +37,10 @@ def read(path: str, columns=None) -> Cloud:
     ``columns`` (``"x,y,z,r,g,b"`` or a list; ``_`` skips a column) names the columns of a text, NPY, PLY or PCD
     file by position, for files whose own names (or lack of them) do not say.
     """
+    if os.path.splitext(path)[1]:
+        check_format(path)  # '.obj': the format is the news, whether or not the file is there
+    cols.check_readable(path)  # a missing folder or file is said as such, not as a format '(none)'
     ext = check_format(path)
-    if os.path.isdir(path):
-        raise CloudError(f"{path}: is a folder, not a point-cloud file")
-    if not os.path.isfile(path):
-        raise CloudError(f"{path}: no such file")
-    if not os.access(path, os.R_OK):
-        raise CloudError(f"{path}: permission denied")
     if columns is not None:
         cols.parse(columns)  # unknown names: said before the file is read
         if ext in (".las", ".laz", ".e57", ".npz"):
@@ -68,8 +63,7 @@ def read(path: str, columns=None) -> Cloud:
     except CloudError:
         raise
     except Exception as e:  # malformed file of a known format
-        message = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        raise CloudError(f"{path}: cannot read as {ext[1:].upper()} ({type(e).__name__}: {message})") from None
+        raise cols.unreadable(path, ext[1:].upper(), e) from None
 
 
 def read_cloud(path: str, columns=None) -> tuple[np.ndarray, np.ndarray | None]:

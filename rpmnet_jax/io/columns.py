@@ -9,6 +9,7 @@ normals when the last three are unit vectors. Anything else needs ``columns`` (`
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numpy as np
 
@@ -24,6 +25,22 @@ ADVICE = "name the columns with --columns (columns= in Python), e.g. x,y,z,r,g,b
 
 class CloudError(ValueError):
     """A point-cloud file could not be used; the message is one line for the user."""
+
+
+def check_readable(path: str) -> None:
+    """``CloudError`` unless ``path`` is a file this process may read (missing, a folder, no permission)."""
+    if not os.path.exists(path):
+        raise CloudError(f"{path}: no such file or folder")
+    if os.path.isdir(path):
+        raise CloudError(f"{path}: is a folder, not a point-cloud file")
+    if not os.access(path, os.R_OK):
+        raise CloudError(f"{path}: permission denied")
+
+
+def unreadable(path: str, kind: str, error: Exception) -> CloudError:
+    """The one-line error for a file of a known ``kind`` (``"PLY"`` …) that its reader failed on."""
+    message = str(error).strip().splitlines()[0] if str(error).strip() else ""
+    return CloudError(f"{path}: cannot read as {kind} ({type(error).__name__}: {message})")
 
 
 @dataclasses.dataclass(frozen=True)

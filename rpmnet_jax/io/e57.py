@@ -36,11 +36,15 @@ def check_available(path: str) -> None:
 
 def read_scans(path: str) -> list:
     """Every scan of an E57 file as a :class:`Scan` (points ``(N, 3)`` float64 in the scan's frame)."""
+    cols.check_readable(path)
     check_available(path)
     import pye57
     from pye57 import libe57
 
-    e57 = pye57.E57(path)
+    try:
+        e57 = pye57.E57(path)
+    except Exception as e:  # not an E57 file: libE57's message is many lines
+        raise cols.unreadable(path, "E57", e) from None
     try:
         if e57.scan_count == 0:
             raise cols.CloudError(f"{path}: the E57 file has no scans")
