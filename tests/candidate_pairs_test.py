@@ -8,7 +8,7 @@ import pytest
 from conftest import DATA, random_pose, require
 from rpmnet_jax.data import synthetic
 from rpmnet_jax.io import clouds as cloud_io, poses as scan_poses
-from rpmnet_jax.multiway import candidate_pairs, edges, scan_alignment
+from rpmnet_jax.multiway import candidate_pairs, edges, preparation
 
 BUNNY = DATA / "stanford_bunny"
 
@@ -108,7 +108,7 @@ def test_bunny_scan_bun000_scores_its_true_neighbours_best():
     require(BUNNY / "bun.conf", "Stanford bunny scans")
     names = list(scan_poses.read_poses(str(BUNNY / "bun.conf")))
     clouds = [cloud_io.read_cloud(str(BUNNY / f"{n}.ply"))[0] for n in names]
-    scans, _ = scan_alignment._prepare_scans(clouds, None, None)[:2]
+    scans, _ = preparation.prepare_scans(clouds, None, None)[:2]
     scores = candidate_pairs.overlap_scores(scans)
     first = names.index("bun000")
     ranked = [names[j] for j in np.argsort(-scores[first]) if j != first]

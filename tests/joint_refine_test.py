@@ -7,7 +7,7 @@ import numpy as np
 
 from conftest import ring_scans, rotation_about, rotation_error_deg
 from rpmnet_jax.evaluation import pose_errors
-from rpmnet_jax.multiway import joint_refine, scan_alignment, sizes
+from rpmnet_jax.multiway import joint_refine, preparation, sizes
 
 
 def _perturbed(poses, degrees, shift, seed):
@@ -28,7 +28,7 @@ def _relative_errors(poses, truth, clouds):
 
 def test_poses_a_degree_off_come_back_to_the_truth():
     clouds, truth = ring_scans(5)
-    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)[:2]
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
     start = _perturbed(truth, 1.5, 0.002, seed=0)  # 1.5° and ~3 mm on a 0.2-wide shape
     pairs = [(i, j) for i, j in itertools.combinations(range(5), 2) if (j - i) % 5 in (1, 4)]  # the ring
     before = _relative_errors(start, truth, clouds)
@@ -43,7 +43,7 @@ def test_poses_a_degree_off_come_back_to_the_truth():
 
 def test_a_scan_in_no_pair_stays_and_no_pairs_change_nothing():
     clouds, truth = ring_scans(4)
-    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)[:2]
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
     start = _perturbed(truth, 1.0, 0.001, seed=1)
     out = joint_refine.refine_jointly(scans, start, [(0, 1), (1, 2)], sizes.DISTANCE_VOXELS * voxel, anchor=0)
     np.testing.assert_array_equal(out.poses[3], start[3])  # scan 3 is in no pair

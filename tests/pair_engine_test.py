@@ -15,7 +15,7 @@ import pytest
 
 import rpmnet_jax
 from conftest import ring_scans, rotation_error_deg
-from rpmnet_jax.multiway import pair_cache, pair_engine, scan_alignment, sizes
+from rpmnet_jax.multiway import pair_cache, pair_engine, preparation, sizes
 
 OPTIONS = rpmnet_jax.ScanOptions(num_points=64, num_iters=2, batch_size=2, refine_points=500)  # small: seconds
 NETWORK_OPTIONS = dataclasses.replace(OPTIONS, classical=False)  # every candidate pair through the network
@@ -49,7 +49,7 @@ def test_in_process_imports_no_dask():
 
 def test_a_pair_s_edge_does_not_depend_on_the_order():
     clouds, _ = ring_scans(4)
-    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)[:2]
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
     settings = pair_engine.Settings(sizes.DISTANCE_VOXELS * voxel, 64, 2, 2, 300, 300, 0,
                                     sizes.RANSAC_VOXELS * voxel)
     pairs = [(0, 1), (1, 2), (0, 3), (2, 3)]
@@ -67,7 +67,7 @@ def test_a_pair_s_edge_does_not_depend_on_the_order():
 
 def test_cached_pairs_are_reused_and_a_changed_scan_s_pairs_computed_again(tmp_path):
     clouds, _ = ring_scans(4)
-    scans, voxel = scan_alignment._prepare_scans(clouds, None, 0.004)[:2]
+    scans, voxel = preparation.prepare_scans(clouds, None, 0.004)[:2]
     settings = pair_engine.Settings(sizes.DISTANCE_VOXELS * voxel, 64, 2, 2, 300, 300, 0,
                                     sizes.RANSAC_VOXELS * voxel)
     pairs, starts = [(0, 1), (1, 2), (0, 3), (2, 3)], [np.eye(4)] * 4

@@ -11,7 +11,7 @@ from rpmnet_jax.evaluation import pose_errors
 from rpmnet_jax.geometry import cloud
 from rpmnet_jax.io import clouds as cloud_io
 from rpmnet_jax.io import poses as scan_poses
-from rpmnet_jax.multiway import edge_doubt, edges as edges_lib, scan_alignment, sizes
+from rpmnet_jax.multiway import edge_doubt, edge_graph, edges as edges_lib, placement, preparation, sizes
 
 BUNNY = DATA / "stanford_bunny"
 
@@ -93,11 +93,11 @@ def test_a_stray_point_does_not_change_a_scan_s_size():
     """The default voxel and correspondence distance follow the median robust radius of the scans: one point
     100 radii away leaves them as they are."""
     clouds, _ = synthetic_scans()
-    voxel = scan_alignment._prepare_scans(clouds, None, None).voxel
+    voxel = preparation.prepare_scans(clouds, None, None).voxel
     radius = float(np.median([cloud.robust_radius(c) for c in clouds]))
     stray = clouds[1].mean(0) + 100 * np.ptp(clouds[1], axis=0)
     dirty = [clouds[0], np.concatenate([clouds[1], stray[None]]), clouds[2]]
-    dirty_voxel = scan_alignment._prepare_scans(dirty, None, None).voxel
+    dirty_voxel = preparation.prepare_scans(dirty, None, None).voxel
     assert dirty_voxel == voxel
     assert voxel == pytest.approx(sizes.OBJECT_RELATIVE_VOXEL * radius)
 
@@ -118,13 +118,13 @@ def test_a_placement_flagged_likely_wrong_is_reported(monkeypatch):
     import types
 
     clouds, _ = synthetic_scans()
-    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)[:2]
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
     poses = np.full((len(scans), 4, 4), np.nan)
     poses[0] = np.eye(4)
     flags = iter([True, False])
-    monkeypatch.setattr(scan_alignment.alignment, "align", lambda *a, **k: types.SimpleNamespace(
+    monkeypatch.setattr(placement.alignment, "align", lambda *a, **k: types.SimpleNamespace(
         transform=np.eye(4), fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=next(flags)))
-    poses, edges, pending, doubtful = scan_alignment._place_remaining(
+    poses, edges, pending, doubtful = placement.place_remaining(
         scans, poses, None, None, voxel, sizes.DISTANCE_VOXELS * voxel, lambda fitness, residual: True, 0, lambda *_: None)
     assert pending == [] and doubtful == [1] and np.isfinite(poses).all()
 
@@ -137,12 +137,12 @@ def test_a_planted_flip_stays_out_of_the_graph():
     turn = np.eye(4)
     turn[:3, :3] = rotation_about([1.0, 1.0, 0.0], 90.0)
     right, flip = (edges_lib.measure(scans, 0, 1, t, 0.05, "classical") for t in (truth, truth @ turn))
-    found, p_of = scan_alignment._screened([[right, flip]], 0.05, lambda e: True, reject=True)
-    assert len(found[0]) == 1 and found[0][0] is right and set(p_of) == {id(right)}
-    assert p_of[id(right)] < edge_doubt.load().threshold  # measured 0.03
-    found, p_of = scan_alignment._screened([[right, flip]], 0.05, lambda e: True, reject=False)
-    assert len(found[0]) == 2 and p_of[id(flip)] >= edge_doubt.load().reject_threshold  # measured 1.00
-    w_right, w_flip = scan_alignment._doubt_weights([right, flip], p_of)
+    found = edge_graph.screened([[right, flip]], 0.05, lambda e: True, reject=True)
+    assert len(found[0]) == 1 and np.array_equal(found[0][0].transform, right.transform)
+    assert found[0][0].p_wrong < edge_doubt.load().threshold  # measured 0.03
+    found = edge_graph.screened([[right, flip]], 0.05, lambda e: True, reject=False)
+    assert len(found[0]) == 2 and found[0][1].p_wrong >= edge_doubt.load().reject_threshold  # measured 1.00
+    w_right, w_flip = edge_graph.doubt_weights(found[0])
     assert w_flip < 0.1 * w_right
 
 
@@ -156,7 +156,7 @@ def test_scans_resting_on_doubtful_edges_are_reported(monkeypatch):
     def p_wrong_of_pairs(answers_per_pair, max_distance, model=None):
         return [np.full(len(a), planted[(a[0].source, a[0].target)] if a else 0.0) for a in answers_per_pair]
 
-    monkeypatch.setattr(scan_alignment.edge_doubt, "p_wrong_of_pairs", p_wrong_of_pairs)
+    monkeypatch.setattr(edge_graph.edge_doubt, "p_wrong_of_pairs", p_wrong_of_pairs)
     screened = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(refine="none", edge_doubt="reject"))
     pairs = {(e.source, e.target) for e in screened.edges + screened.rejected}
     assert (0, 2) not in pairs and {(0, 1), (1, 2)} <= pairs

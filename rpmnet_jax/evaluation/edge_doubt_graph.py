@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from rpmnet_jax.evaluation import edge_doubt_records as records_lib
-from rpmnet_jax.multiway import edge_doubt, options as options_lib, scan_alignment
+from rpmnet_jax.multiway import edge_doubt, edge_graph, options as options_lib, scan_alignment
 
 
 def _truth_to(records, anchor: int) -> dict:
@@ -41,19 +41,18 @@ def outcome(records, p, *, threshold: float, reject_at: float | None = None, wei
     if not chosen:
         return {**counts, "wrong_kept": 0, "right_kept": 0, "placed": 0, "wrong_poses": 0, "resting": 0,
                 "resting_wrong": 0}
-    edges = [e for e, _, _ in chosen]
-    p_of = {id(e): q for e, (_, _, q) in zip(edges, chosen)}
+    edges = [e._replace(p_wrong=float(q)) for e, _, q in chosen]
     noise = tuple(scan_alignment.NETWORK_NOISE_SCALE * x for x in (np.radians(o.edge_sigma_deg),
                                                                    o.edge_sigma_fraction * max_dist))
-    anchor = scan_alignment._largest_component(num_scans, edges)
-    poses, kept, _ = scan_alignment._solve(num_scans, edges, anchor, noise, o.seed,
-                                           scan_alignment._doubt_weights(edges, p_of) if weigh else None)
+    anchor = edge_graph.largest_component(num_scans, edges)
+    poses, kept, _ = edge_graph.solve(num_scans, edges, anchor, noise, o.seed,
+                                       edge_graph.doubt_weights(edges) if weigh else None)
     kept_ids = {id(e) for e in kept}
     kept_mask = np.array([id(e) in kept_ids for e in edges])
     truth = _truth_to(records, anchor)
     placed = [s for s in range(num_scans) if np.isfinite(poses[s, 0, 0])]
     off = {s: records_lib.rotation_error_deg(poses[s], truth[s]) > edge_doubt.WRONG_DEG for s in placed}
-    resting = scan_alignment._resting_on_doubt(num_scans, kept, p_of, anchor, threshold)  # as align_scans reports
+    resting = edge_graph.resting_on_doubt(num_scans, kept, anchor, threshold)  # as align_scans reports
     w = np.array([w for _, w, _ in chosen], bool)
     return {**counts, "wrong_kept": int((w & kept_mask).sum()), "right_kept": int((~w & kept_mask).sum()),
             "placed": len(placed), "wrong_poses": int(sum(off.values())), "resting": len(resting),

@@ -11,8 +11,7 @@ import os
 
 import numpy as np
 
-from rpmnet_jax.multiway import edge_doubt, edges as edges_lib, options as options_lib, pair_engine, scan_alignment
-from rpmnet_jax.multiway import sizes
+from rpmnet_jax.multiway import edge_doubt, edges as edges_lib, options as options_lib, pair_engine, preparation, sizes
 from rpmnet_jax.ops import se3
 
 
@@ -35,9 +34,9 @@ def scan_set(clouds, poses, *, seed: int = 0, tick=None, **meta) -> list:
     inlier_rmse, plane_residual, information, stage, error_deg}, ...]}``, answers best first as
     ``classical_edges`` returns them (``seed``: align_scans' ``ScanOptions.seed``); ``tick(done, total)``."""
     o = options_lib.ScanOptions(seed=seed)
-    scans, voxel = scan_alignment._prepare_scans(clouds, None, None)[:2]
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
     max_dist = sizes.DISTANCE_VOXELS * voxel
-    candidates = set(scan_alignment._candidate_pairs(scans, o.all_pairs_up_to, o.neighbours, seed))
+    candidates = set(preparation.pairs_to_register(scans, o.all_pairs_up_to, o.neighbours, seed))
     pairs = list(itertools.combinations(range(len(scans)), 2))
     out = []
     for k, (i, j) in enumerate(pairs):

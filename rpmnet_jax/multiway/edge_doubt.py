@@ -15,8 +15,6 @@ features and the weighing were chosen on the 'held-out' rings of a box (tuning d
 
 from __future__ import annotations
 
-import functools
-import json
 import os
 
 import numpy as np
@@ -84,19 +82,17 @@ class Model(doubt.Model):
     ``threshold``: the bar of ``likely_wrong`` (and of :func:`resting_on_flagged`), ``reject_threshold``: the
     higher bar at which an edge is best kept out of the pose graph."""
 
+    FEATURES = FEATURES
+    NAME = "edge doubt model"
+
     def __init__(self, spec: dict):
-        if tuple(spec["features"]) != FEATURES:
-            raise ValueError(f"the edge doubt model was fitted on features {spec['features']}, this code makes "
-                             f"{FEATURES}")
-        super().__init__({**spec, "features": doubt.FEATURES})  # the same numbers, checked against ours above
+        super().__init__(spec)
         self.reject_threshold = float(spec["reject_threshold"])
 
 
-@functools.lru_cache(maxsize=4)
 def load(path: str = MODEL_PATH) -> Model:
     """The model of a JSON file (default the shipped one), read once."""
-    with open(path) as f:
-        return Model(json.load(f))
+    return doubt.read_model(Model, path)
 
 
 def p_wrong(edge, max_distance: float, answers=(), model: Model | None = None) -> float:

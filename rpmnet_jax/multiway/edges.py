@@ -47,6 +47,7 @@ class Edge(NamedTuple):
     plane_residual: float  # median |point-to-plane distance| of those pairs: small where the surfaces coincide
     stage: str  # "classical" (FPFH + RANSAC + ICP), "network" (batched network + ICP), "global" (placed against
     # the merged model), "refine" (ICP)
+    p_wrong: float = 0.0  # a classical edge's probability of a rotation > 5° off (multiway.edge_doubt); 0: not rated
 
 
 def make_scan(points: np.ndarray, normals: np.ndarray, feature_radius: float | None = None, voxel: float = 0.0,
@@ -118,6 +119,14 @@ def classical_edges(scans, i: int, j: int, max_distance: float, ransac_distance:
     return [found[k] for k in keep]
 
 
+def batches(items: list, batch_size: int) -> list:
+    """``[(chunk, padded), ...]``: ``items`` in order, in chunks of one size (a power of two up to ``batch_size``:
+    one batch shape, one compile), each ``padded`` to that size with its last item."""
+    size = min(batch_size, 1 << max(0, len(items) - 1).bit_length())
+    chunks = [list(items[k:k + size]) for k in range(0, len(items), size)]
+    return [(chunk, chunk + chunk[-1:] * (size - len(chunk))) for chunk in chunks]
+
+
 def network_starts(params, scans, pairs, *, cfg, num_points: int, num_iters: int, batch_size: int, seed: int
                    ) -> np.ndarray:
     """``(P, 4, 4)`` network answers (caller's units) for ``pairs (P, 2)``, each started from the identity
@@ -133,10 +142,7 @@ def network_starts(params, scans, pairs, *, cfg, num_points: int, num_iters: int
     for p, pair in enumerate(prepared):
         groups.setdefault((pair.src6.shape[1], pair.ref6.shape[1]), []).append(p)
     for members in groups.values():
-        size = min(batch_size, 1 << (len(members) - 1).bit_length())  # a power of two up to batch_size
-        for start in range(0, len(members), size):
-            chunk = members[start:start + size]
-            padded = chunk + [chunk[-1]] * (size - len(chunk))
+        for chunk, padded in batches(members, batch_size):
             src = np.concatenate([prepared[p].src6 for p in padded])
             ref = np.concatenate([prepared[p].ref6 for p in padded])
             transforms = np.asarray(fn(params, src, ref)[-1], np.float64)  # (size, 3, 4), normalised frames

@@ -139,10 +139,7 @@ class PairEngine:
     def __enter__(self):
         if self.scheduler is None:
             return self
-        try:
-            import distributed
-        except ImportError as e:
-            raise ValueError("scheduler= needs Dask distributed: pip install 'dask[distributed]'") from e
+        import distributed  # a dependency; imported only when a scheduler is asked for
         if hasattr(self.scheduler, "submit"):
             self.client = self.scheduler
             return self
@@ -201,13 +198,10 @@ class PairEngine:
         names = {p: self._name("network", p, key) for p in pairs}
         found = self._load(names)
         tasks = []
-        size = min(s.batch_size, 1 << max(0, len(pairs) - 1).bit_length())  # one batch shape: one compile
-        for k in range(0, len(pairs), size):
-            chunk = [tuple(p) for p in pairs[k:k + size]]
+        for chunk, padded in edges_lib.batches([tuple(p) for p in pairs], s.batch_size):
             todo = [p for p in chunk if p not in found]
-            if todo:  # the last chunk padded with its last pair
-                tasks.append((network_chunk, (chunk + chunk[-1:] * (size - len(chunk)), todo, _PARAMS, self.cfg, s),
-                              chunk))
+            if todo:
+                tasks.append((network_chunk, (padded, todo, _PARAMS, self.cfg, s), chunk))
         return [answers[0] for answers in self._run(tasks, names, found, pairs, tick)]
 
     def classical_edges(self, pairs, tick=None) -> list:

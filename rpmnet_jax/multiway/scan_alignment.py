@@ -1,14 +1,15 @@
 """Many scans into one frame: pairwise registration, a robust pose graph on SE(3), a final refinement.
 
-Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
+Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`. :func:`align_scans` runs the steps below as stages of
+one run state (:class:`_Run`); each step's work lives in its own module.
 
 0. every scan moved by one common shift near the origin (:mod:`rpmnet_jax.geometry.offsets`: whole units, float64),
    so that scans in a national grid are registered as near the origin; the answers are moved back;
-1. prepare: each scan cleaned, voxel-downsampled (``voxel_size``, default a share of the median robust scan
+1. prepare (:mod:`rpmnet_jax.multiway.preparation`): each scan cleaned, voxel-downsampled (``voxel_size``, default a share of the median robust scan
    radius: 2% for objects, 1% for scans seen from inside a scene; every other size a multiple of the voxel,
    :mod:`rpmnet_jax.multiway.sizes`), normals averaged per voxel when given, else estimated (PCA) on the
    downsampled scan and facing its sensor where one is known (else away from its centroid);
-2. pair edges: the candidate pairs are every pair up to ``all_pairs_up_to`` scans, else each scan with its
+2. pair edges (:mod:`rpmnet_jax.multiway.edge_graph`): the candidate pairs are every pair up to ``all_pairs_up_to`` scans, else each scan with its
    ``neighbours`` best partners by a cheap overlap estimate (a bag of FPFH words per scan) plus a spanning tree
    of those scores (:mod:`rpmnet_jax.multiway.candidate_pairs`: O(S·k) pairs whatever the file order). Each is
    registered by FPFH + RANSAC on keypoints one per cube of 2 voxels (each one's FPFH from its neighbours in the
@@ -29,12 +30,12 @@ Options: :class:`~rpmnet_jax.multiway.options.ScanOptions`.
    edges (a flipped pair) are rejected. The largest component of the kept edges is placed; its scans whose every
    path to the anchor crosses a kept classical edge with ``p_wrong`` ≥ the model's ``threshold`` (0.5: more likely
    wrong than right) are reported in ``likely_wrong``;
-4. global: each scan outside it is registered onto the merged, placed scans by :func:`rpmnet_jax.align` with
+4. global (:mod:`rpmnet_jax.multiway.placement`): each scan outside it is registered onto the merged, placed scans by :func:`rpmnet_jax.align` with
    ``init="global"`` (rotation hypotheses covering every orientation, one batched call); placed when its
    fitness is at least ``min_fitness``, else left out with a warning (it overlaps nothing); a placement
    ``align`` flags ``likely_wrong`` (:mod:`rpmnet_jax.pairwise.doubt`) is reported in ``likely_wrong`` (the
    robust graph, not the flag, decides which edges stay);
-5. refine: every placed pair predicted to overlap by ``min_overlap`` at the current poses takes part:
+5. refine (:mod:`rpmnet_jax.multiway.refinement`): every placed pair predicted to overlap by ``min_overlap`` at the current poses takes part:
    ``refine="joint"`` (default) moves all poses together on their points (multi-view point-to-plane,
    :mod:`rpmnet_jax.multiway.joint_refine`), then measures each pair as an edge; ``refine="icp"`` gives each
    an ICP edge from the current poses on up to ``refine_points`` points, and the robust pose graph of those
@@ -48,22 +49,18 @@ overconfident, and the floor is what the χ² bound that rejects edges is measur
 
 from __future__ import annotations
 
-import itertools
+import dataclasses
 import warnings
 from typing import NamedTuple
 
 import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
-from rpmnet_jax.geometry import cloud, normals as normals_lib, offsets, sampling, scoring, threads, visibility
-from rpmnet_jax.multiway import candidate_pairs, edge_doubt, edges as edges_lib, joint_refine, options as options_lib
-from rpmnet_jax.multiway import pair_engine, pose_graph, sizes
-from rpmnet_jax.ops import se3
-from rpmnet_jax.pairwise import alignment
+from rpmnet_jax.geometry import offsets, threads
+from rpmnet_jax.multiway import edge_graph, options as options_lib, pair_engine, placement, pose_graph, preparation
+from rpmnet_jax.multiway import refinement, sizes
 from rpmnet_jax.weights import loading
 
-MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
-FREE_SPACE_MARGIN = 2.0  # the free-space check's margin, × the correspondence distance (noise, the bins' spread)
 NETWORK_ICP_POINTS = 1500  # the short ICP of a pair edge (icp.NETWORK_EDGE), source points per candidate pair
 NETWORK_NOISE_SCALE = 3.0  # the pair edges' short ICP is coarser: their noise floor is this many times larger
 
@@ -74,7 +71,7 @@ class LeftOutWarning(UserWarning):
 
 class ScanAlignment(NamedTuple):
     poses: np.ndarray  # (S, 4, 4): scan → the first placed scan's frame (scan 0 unless left out); NaN if left out
-    edges: tuple  # Edge of the final pose graph (kept by the robust optimisation)
+    edges: tuple  # Edge of the final pose graph (kept by the robust optimisation), each with its p_wrong
     rejected: tuple  # Edge the robust optimisation rejected: among the pair edges and the final ones
     left_out: tuple  # indices of scans that overlap none of the placed ones (poses NaN)
     voxel_size: float  # caller's units
@@ -84,194 +81,6 @@ class ScanAlignment(NamedTuple):
     likely_wrong: tuple = ()  # placed scans whose pose rests on a likely wrong pair edge (step 3) or whose placement
     # by ``align`` (step 4) was flagged ``likely_wrong``
     pairs: dict = {}  # pairs registered per stage: classical, network, global (placements), refine (pairs refined)
-
-
-def _candidate_pairs(scans, all_pairs_up_to: int, neighbours: int, seed: int) -> list:
-    """``[(i, j), ...]``, ``i < j``: every pair up to ``all_pairs_up_to`` scans, else each scan with its
-    ``neighbours`` best partners by the bag-of-words overlap score and a spanning tree of those scores
-    (:mod:`rpmnet_jax.multiway.candidate_pairs`), whatever the order of the scans."""
-    if len(scans) <= all_pairs_up_to:
-        return list(itertools.combinations(range(len(scans)), 2))
-    return candidate_pairs.select_pairs(candidate_pairs.overlap_scores(scans, seed=seed), neighbours)
-
-
-class Prepared(NamedTuple):
-    scans: list  # edges.Scan of each scan, moved by -shift
-    voxel: float  # caller's units
-    sensors: list  # each scan's sensor (3,) in the moved frame, or None
-    scene: bool  # scans seen from inside a scene (sizes.voxel)
-
-
-def _prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="auto") -> Prepared:
-    """The cleaned scans moved by ``-shift``, voxel-downsampled, with normals (the caller's, else estimated, facing
-    each scan's sensor where :func:`rpmnet_jax.multiway.sizes.sensors` knows it) and features."""
-    if len(clouds) < 2:
-        raise ValueError(f"need at least two scans, got {len(clouds)}")
-    normals = [None] * len(clouds) if normals is None else list(normals)
-    if len(normals) != len(clouds):
-        raise ValueError(f"got {len(normals)} normal arrays for {len(clouds)} scans")
-    cleaned = [cloud.clean_cloud(f"scan {i}", c, n)[:2] for i, (c, n) in enumerate(zip(clouds, normals))]
-    seen_from = [None if v is None else v - shift for v in sizes.sensors([p for p, _ in cleaned], viewpoints)]
-    cleaned = [(p - shift, n) for p, n in cleaned]  # float64: the shift loses nothing
-    voxel, scene = sizes.voxel([p for p, _ in cleaned], seen_from, voxel_size)
-    scans = []
-    for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from)):
-        p, n = sampling.voxel_downsample(p, n, voxel)
-        if len(p) < MIN_VOXEL_POINTS:
-            raise ValueError(f"scan {i}: {len(p)} points after voxel downsampling at {voxel:.4g}; "
-                             "a smaller voxel size is needed")
-        if n is None:
-            n = normals_lib.estimate_normals(p) if sensor is None else normals_lib.facing(p, sensor)
-        scans.append(edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=i))
-    return Prepared(scans, voxel, seen_from, scene)
-
-
-def _screened(answers_per_pair, max_dist: float, good, reject: bool, visible=None):
-    """Step 2's classical answers of each pair through the edge doubt model: (the good answers of each pair,
-    less those with ``p_wrong ≥ reject_threshold`` when ``reject`` and those ``visible(edge)`` refuses (an
-    answer that puts one scan in the space the other's sensor saw through); ``{id(edge): p_wrong}`` of those)."""
-    model = edge_doubt.load()
-    found, p_of = [], {}
-    for answers, p in zip(answers_per_pair, edge_doubt.p_wrong_of_pairs(answers_per_pair, max_dist, model)):
-        kept = [(e, float(q)) for e, q in zip(answers, p) if good(e) and not (reject and q >= model.reject_threshold)
-                and (visible is None or visible(e))]
-        found.append([e for e, _ in kept])
-        p_of.update((id(e), q) for e, q in kept)
-    return found, p_of
-
-
-def _free_space_check(scans, sensors, max_dist):
-    """``visible(edge) -> bool``: whether the edge keeps each scan out of the other's free space
-    (:mod:`rpmnet_jax.geometry.visibility`); edges between scans without known sensors pass."""
-    images = {}
-
-    def image(k):
-        if k not in images:
-            images[k] = visibility.range_image(scans[k].points, sensors[k])
-        return images[k]
-
-    def visible(e) -> bool:
-        if sensors[e.source] is None or sensors[e.target] is None:
-            return True
-        return visibility.violation(scans[e.source].points, image(e.source), scans[e.target].points,
-                                    image(e.target), e.transform, FREE_SPACE_MARGIN * max_dist
-                                    ) <= visibility.MAX_FREE_SPACE_SHARE
-    return visible
-
-
-def _resting_on_doubt(num_scans: int, kept_edges, p_of: dict, anchor: int, threshold: float | None = None) -> list:
-    """The scans whose every path to ``anchor`` over ``kept_edges`` crosses one with ``p_wrong`` (``p_of``, by
-    ``id``; edges not in it are not flagged) at or above ``threshold`` (default the edge doubt model's)."""
-    threshold = edge_doubt.load().threshold if threshold is None else threshold
-    flagged = [p_of.get(id(e), 0.0) >= threshold for e in kept_edges]
-    pairs = [(e.source, e.target) for e in kept_edges]
-    return np.flatnonzero(edge_doubt.resting_on_flagged(num_scans, pairs, flagged, anchor)).tolist()
-
-
-def _edge_information(info: np.ndarray, rot_sigma: float, trans_sigma: float) -> np.ndarray:
-    """``(inv(info) + C)⁻¹`` with ``C`` the diagonal floor, computed without inverting a singular ``info``."""
-    c_inv = np.diag([rot_sigma ** -2] * 3 + [trans_sigma ** -2] * 3)
-    return c_inv - c_inv @ np.linalg.solve(info + c_inv, c_inv)
-
-
-def _doubt_weights(edges, p_of: dict) -> list:
-    """``[fitness × (1 − p_wrong), ...]`` of ``edges`` (``p_of``: by ``id``; edges not in it count as sure)."""
-    return [e.fitness * (1.0 - p_of.get(id(e), 0.0)) for e in edges]
-
-
-def _solve(num_scans, edges, anchor, noise, seed, weights=None):
-    """Robust pose graph of ``edges``, its consensus ranking them by ``weights`` (default their fitness): (poses,
-    NaN off the anchor's component of the kept edges; kept edges of that component; rejected edges)."""
-    pairs = [(e.source, e.target) for e in edges]
-    used = pose_graph.component(num_scans, pairs, anchor)
-    info = [_edge_information(e.information, *noise) for e in edges]
-    sol = pose_graph.optimize(num_scans, pairs, [e.transform for e in edges], info, anchor,
-                              weights=[e.fitness for e in edges] if weights is None else weights, seed=seed)
-    rejected = [e for e, ok in zip(edges, sol.inlier) if used[e.source] and not ok]
-    kept = [e for e, ok in zip(edges, sol.inlier) if ok]
-    nodes = pose_graph.component(num_scans, [(e.source, e.target) for e in kept], anchor)
-    poses = np.where(nodes[:, None, None], sol.poses, np.nan)
-    return poses, [e for e in kept if nodes[e.source]], rejected
-
-
-def _largest_component(num_scans, edges):
-    """The first scan of the largest connected component of ``edges``."""
-    labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
-    return int(np.argmax(labels == np.argmax(np.bincount(labels))))
-
-
-def _merged(scans, poses, placed, voxel):
-    points = np.concatenate([se3.apply(poses[s], scans[s].points) for s in placed])
-    points, _ = sampling.voxel_downsample(points, None, voxel)
-    return points, normals_lib.estimate_normals(points)
-
-
-def _place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, tick):
-    """Step 4: registers each unplaced scan onto the merged placed ones (``align``, ``init="global"``), in
-    index order, merging again after each success (``tick(placed, scans)`` then). Returns (poses, placement
-    edges, scans still pending, placed scans whose ``align`` answer was ``likely_wrong``)."""
-    placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
-    pending = [s for s in range(len(scans)) if s not in placed]
-    edges, doubtful = [], []
-    grew = True
-    while pending and grew:
-        grew = False
-        model, model_normals = _merged(scans, poses, placed, voxel)
-        for s in pending:
-            a = alignment.align(scans[s].points, model, scans[s].normals, model_normals, params=params, cfg=cfg,
-                                init="global", max_correspondence_distance=max_dist, seed=seed)
-            residuals = scoring.plane_fit(scans[s].points, model, model_normals, a.transform,
-                                          a.correspondences).residuals
-            if accept(a.fitness, np.median(np.abs(residuals)) if len(residuals) else np.inf):
-                poses[s] = a.transform
-                doubtful += [s] if a.likely_wrong else []  # reported; the robust graph still decides on the edges
-                edges += [edges_lib.measure(scans, s, o, np.linalg.inv(poses[o]) @ poses[s], max_dist, "global")
-                          for o in placed]
-                placed.append(s)
-                pending.remove(s)
-                tick(len(placed), len(scans))
-                grew = True
-                break  # the model grew: merge again before the next scan
-    return poses, edges, pending, doubtful
-
-
-def _overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=None) -> list:
-    """``[(i, j), ...]``, ``i < j``: the placed pairs predicted to overlap by ``min_overlap`` at ``poses`` (the
-    pairs whose bounding spheres lie apart are not looked at); with ``neighbours``, of those only each scan's
-    ``neighbours`` most overlapping ones (their union)."""
-    means = {s: scans[s].points.mean(axis=0) for s in placed}  # each scan's centre in its own frame
-    centres = {s: se3.apply(poses[s], means[s][None])[0] for s in placed}
-    radii = {s: float(np.max(np.linalg.norm(scans[s].points - means[s], axis=1))) for s in placed}
-    near = [(i, j) for i, j in itertools.combinations(sorted(placed), 2)
-            if np.linalg.norm(centres[i] - centres[j]) <= radii[i] + radii[j] + max_dist]
-    overlap = {(i, j): edges_lib.predicted_overlap(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist)
-               for i, j in near}
-    pairs = [p for p in near if overlap[p] >= min_overlap]
-    if neighbours is None:
-        return pairs
-    best = set()
-    for s in placed:
-        mine = sorted((p for p in pairs if s in p), key=lambda p: -overlap[p])
-        best.update(mine[:neighbours])
-    return sorted(best)
-
-
-def _refine_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_, tick):
-    """Step 5, one round: an ICP edge from the current poses for every placed pair predicted to overlap, run by
-    ``engine`` (``tick(done, total)`` as they finish): (the edges ``keep`` accepts, the number of pairs)."""
-    pairs = _overlapping_pairs(scans, poses, placed, max_dist, min_overlap)
-    starts = [np.linalg.inv(poses[j]) @ poses[i] for i, j in pairs]
-    return [e for e in engine.refine_edges(pairs, starts, round_, tick) if keep(e)], len(pairs)
-
-
-def _refine_jointly(scans, poses, placed, max_dist, o, keep, tick):
-    """Step 5 with ``refine="joint"``: the overlapping pairs' points refine all poses together
-    (:mod:`rpmnet_jax.multiway.joint_refine`); then each pair measured: (poses, kept edges, the other edges)."""
-    pairs = _overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)
-    poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed, tick=tick).poses
-    measured = [edges_lib.measure(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist, "joint")
-                for i, j in pairs]
-    return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]
 
 
 def align_scans(clouds, normals=None, *, viewpoints="auto",
@@ -293,111 +102,173 @@ def align_scans(clouds, normals=None, *, viewpoints="auto",
     if not isinstance(options, options_lib.ScanOptions):
         raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")
     with threads.compiled_loops(), pair_engine.PairEngine(scheduler, cache) as engine:
-        return _align_scans(engine, clouds, normals, viewpoints, options, params, checkpoint, cfg, progress)
+        run = _prepare(engine, clouds, normals, viewpoints, options, params, checkpoint, cfg, progress)
+        for stage in (_pair_edges, _pose_graph, _place_others, _refine):
+            stage(run)
+        return _answer(run)
 
 
-def _align_scans(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, progress) -> ScanAlignment:
+@dataclasses.dataclass
+class _Run:
+    """One :func:`align_scans` run: what its stages share, filled in as they go (sizes in the moved frame)."""
 
-    def ticker(stage):
+    options: options_lib.ScanOptions
+    engine: pair_engine.PairEngine
+    clock: stopwatch.Stopwatch
+    progress: object  # progress(stage, done, total) or None
+    shift: np.ndarray  # (3,) the common shift: every estimate is made near the origin, then moved back
+    prepared: preparation.Prepared
+    max_dist: float  # the correspondence distance
+    plane_bar: float  # an accepted edge's median point-to-plane distance, × max_dist
+    params: object  # the network's parameters (None: loaded when the network first runs)
+    cfg: config_lib.RPMNetConfig
+    poses: np.ndarray = None  # (S, 4, 4), NaN while a scan is unplaced
+    edges: list = dataclasses.field(default_factory=list)  # the edges of the current graph
+    rejected: list = dataclasses.field(default_factory=list)  # rejected by the pair edges' robust graph
+    refine_rejected: list = dataclasses.field(default_factory=list)  # rejected by the final graph or measure
+    global_edges: list = dataclasses.field(default_factory=list)  # placement's edges kept
+    pending: list = dataclasses.field(default_factory=list)  # scans placement could not place
+    likely_wrong: set = dataclasses.field(default_factory=set)
+    counts: dict = dataclasses.field(default_factory=dict)  # pairs registered per stage
+
+    @property
+    def scans(self) -> list:
+        return self.prepared.scans
+
+    def noise(self, scale: float = 1.0) -> tuple:
+        """The edge noise floor (rotation, translation sigmas), × ``scale``."""
+        o = self.options
+        return scale * np.radians(o.edge_sigma_deg), scale * (o.edge_sigma_fraction * self.max_dist)
+
+    def good(self, edge, fitness: float) -> bool:
+        """The rule an edge passes: fitness ≥ ``fitness`` and surfaces that coincide."""
+        return edge.fitness >= fitness and edge.plane_residual <= self.plane_bar * self.max_dist
+
+    def placed(self) -> list:
+        return [s for s in range(len(self.scans)) if np.isfinite(self.poses[s, 0, 0])]
+
+    def tick(self, stage: str):
         """``tick(done, total)`` of ``stage``: passed on to ``progress``, if any."""
-        return lambda done, total: progress(stage, done, total) if progress is not None else None
+        return lambda done, total: self.progress(stage, done, total) if self.progress is not None else None
 
+
+def _prepare(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, progress) -> _Run:
+    """Step 0–1: the common shift, the prepared scans and every size; the engine bound to them."""
     clock = stopwatch.Stopwatch()
     with clock.stage("prepare"):
-        shift = offsets.common_shift(clouds)  # every estimate is made near the origin, then moved back
-        scans, voxel, seen_from, scene = _prepare_scans(clouds, normals, o.voxel_size, shift, viewpoints)
-        plane_bar = o.max_plane_residual if o.max_plane_residual is not None else sizes.plane_residual(scene)
-        num_scans = len(scans)
+        shift = offsets.common_shift(clouds)
+        prepared = preparation.prepare_scans(clouds, normals, o.voxel_size, shift, viewpoints)
         max_dist = (float(o.max_correspondence_distance) if o.max_correspondence_distance is not None
-                    else sizes.DISTANCE_VOXELS * voxel)
-        noise = (np.radians(o.edge_sigma_deg), o.edge_sigma_fraction * max_dist)
-        network_noise = tuple(NETWORK_NOISE_SCALE * x for x in noise)
+                    else sizes.DISTANCE_VOXELS * prepared.voxel)
+        plane_bar = o.max_plane_residual if o.max_plane_residual is not None else sizes.plane_residual(prepared.scene)
         if params is None and checkpoint is not None:  # a caller's checkpoint is checked (and refused) up front
             params = loading.load_params(checkpoint)
         cfg = cfg or config_lib.RPMNetConfig()
-        engine.bind(scans, params, cfg, pair_engine.Settings(
+        engine.bind(prepared.scans, params, cfg, pair_engine.Settings(
             max_dist, o.num_points, o.num_iters, o.batch_size, NETWORK_ICP_POINTS, o.refine_points, o.seed,
-            sizes.RANSAC_VOXELS * voxel, plane_bar, all(v is None for v in seen_from)))
+            sizes.RANSAC_VOXELS * prepared.voxel, plane_bar, all(v is None for v in prepared.sensors)))
+    poses = np.full((len(prepared.scans), 4, 4), np.nan)
+    poses[0] = np.eye(4)
+    return _Run(o, engine, clock, progress, shift, prepared, max_dist, plane_bar, params, cfg, poses)
 
-    def good(e, fitness):
-        return e.fitness >= fitness and e.plane_residual <= plane_bar * max_dist
 
-    counts, p_of = {}, {}
+def _pair_edges(run: _Run) -> None:
+    """Step 2: classical edges of every candidate pair (rated, screened), the network's on the pairs they leave
+    between separate groups of scans (on every pair without ``classical``)."""
+    o, clock, engine = run.options, run.clock, run.engine
     with clock.stage("candidates"):
-        pairs = _candidate_pairs(scans, o.all_pairs_up_to, o.neighbours, o.seed)
-    edges, weak = [], pairs  # without classical edges, every candidate pair goes through the network
+        pairs = preparation.pairs_to_register(run.scans, o.all_pairs_up_to, o.neighbours, o.seed)
+    weak = pairs
     if o.classical:
-        with clock.stage("classical"):  # 2. every candidate pair: FPFH + RANSAC, a short ICP; the edge doubt
-            found, p_of = _screened(engine.classical_edges(pairs, ticker("classical edges")), max_dist,
-                                    lambda e: good(e, o.min_fitness), o.edge_doubt == "reject",
-                                    _free_space_check(scans, seen_from, max_dist))
-            counts["classical"] = len(pairs)
-            edges = [e for answers in found for e in answers]  # a symmetric pair's answers: the graph chooses
-        labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
+        with clock.stage("classical"):
+            found = edge_graph.screened(engine.classical_edges(pairs, run.tick("classical edges")), run.max_dist,
+                                        lambda e: run.good(e, o.min_fitness), o.edge_doubt == "reject",
+                                        edge_graph.free_space_check(run.scans, run.prepared.sensors, run.max_dist))
+            run.counts["classical"] = len(pairs)
+            run.edges = [e for answers in found for e in answers]  # a symmetric pair's answers: the graph chooses
+        labels = pose_graph.components(len(run.scans), [(e.source, e.target) for e in run.edges])
         weak = [p for p, answers in zip(pairs, found) if not answers and labels[p[0]] != labels[p[1]]]
     if weak:
-        with clock.stage("network"):  # the pairs left between components: the network from the identity
-            edges += [e for e in engine.network_edges(weak, ticker("network edges")) if good(e, o.min_fitness)]
-            counts["network"] = len(weak)
+        with clock.stage("network"):
+            run.edges += [e for e in engine.network_edges(weak, run.tick("network edges"))
+                          if run.good(e, o.min_fitness)]
+            run.counts["network"] = len(weak)
 
-    rejected, resting = [], []  # 3. robust pose graph over them: the largest consistent component is placed
-    poses = np.full((num_scans, 4, 4), np.nan)
-    poses[0] = np.eye(4)
-    if edges:
-        with clock.stage("graph"):
-            anchor = _largest_component(num_scans, edges)
-            poses, edges, rejected = _solve(num_scans, edges, anchor, network_noise, o.seed,
-                                            None if o.edge_doubt == "off" else _doubt_weights(edges, p_of))
-            resting = _resting_on_doubt(num_scans, edges, p_of, anchor)
 
-    global_edges, doubtful = [], []
-    pending = [s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0])]
-    if pending:  # 4. the other scans: global registration onto the merged placed scans
-        with clock.stage("global"):
-            params = params if params is not None else loading.load_params(None)
-            poses, global_edges, pending, doubtful = _place_remaining(
-                scans, poses, params, cfg, voxel, max_dist, seed=o.seed, tick=ticker("placing the other scans"),
-                accept=lambda fitness, residual: (fitness >= o.min_fitness
-                                                  and residual <= plane_bar * max_dist))
-            counts["global"] = len(global_edges)
-            global_edges = [e for e in global_edges if good(e, o.min_overlap)]
+def _pose_graph(run: _Run) -> None:
+    """Step 3: the robust pose graph of the pair edges places the largest consistent component."""
+    if not run.edges:
+        return
+    with run.clock.stage("graph"):
+        num_scans = len(run.scans)
+        anchor = edge_graph.largest_component(num_scans, run.edges)
+        weights = None if run.options.edge_doubt == "off" else edge_graph.doubt_weights(run.edges)
+        run.poses, run.edges, run.rejected = edge_graph.solve(num_scans, run.edges, anchor,
+                                                              run.noise(NETWORK_NOISE_SCALE), run.options.seed, weights)
+        run.likely_wrong.update(edge_graph.resting_on_doubt(num_scans, run.edges, anchor))
 
-    # 5. refinement rounds (or, without, one graph of the pair and placement edges, at the pair edges' noise)
-    placed = [s for s in range(num_scans) if np.isfinite(poses[s, 0, 0])]
-    final_edges, final_rejected = edges + global_edges, []
+
+def _place_others(run: _Run) -> None:
+    """Step 4: each scan still unplaced registered onto the merged placed scans; placed at ``min_fitness`` with
+    coinciding surfaces; its edges to each placed scan kept at ``min_overlap`` (one scan may overlap a few)."""
+    o = run.options
+    if not any(not np.isfinite(run.poses[s, 0, 0]) for s in range(len(run.scans))):
+        return
+    with run.clock.stage("global"):
+        run.params = run.params if run.params is not None else loading.load_params(None)
+        run.poses, found, run.pending, doubtful = placement.place_remaining(
+            run.scans, run.poses, run.params, run.cfg, run.prepared.voxel, run.max_dist, seed=o.seed,
+            tick=run.tick("placing the other scans"),
+            accept=lambda fitness, residual: fitness >= o.min_fitness and residual <= run.plane_bar * run.max_dist)
+        run.counts["global"] = len(found)
+        run.global_edges = [e for e in found if run.good(e, o.min_overlap)]
+        run.edges += run.global_edges
+        run.likely_wrong.update(doubtful)
+
+
+def _refine(run: _Run) -> None:
+    """Step 5: ``refine="icp"`` rounds of ICP edges, each a robust graph; ``"joint"`` all poses together;
+    ``"none"`` with placed scans, one graph of the pair and placement edges at the pair edges' noise."""
+    o, placed = run.options, run.placed()
+    keep = (lambda e: run.good(e, o.min_overlap))
     for r in range(o.refine_rounds if o.refine == "icp" and len(placed) > 1 else 0):
-        with clock.stage("refine"):
-            round_edges, registered = _refine_round(engine, scans, poses, placed, max_dist, o.min_overlap,
-                                                    lambda e: good(e, o.min_overlap), r,
-                                                    ticker(f"refinement round {r + 1}"))
-            counts["refine"] = counts.get("refine", 0) + registered
-            if not round_edges:
+        with run.clock.stage("refine"):
+            found, registered = refinement.icp_round(run.engine, run.scans, run.poses, placed, run.max_dist,
+                                                     o.min_overlap, keep, r, run.tick(f"refinement round {r + 1}"))
+            run.counts["refine"] = run.counts.get("refine", 0) + registered
+            if not found:
                 break
-            poses, final_edges, final_rejected = _solve(num_scans, round_edges, min(placed), noise, o.seed)
-        dropped = [s for s in placed if not np.isfinite(poses[s, 0, 0])]
+            run.poses, run.edges, run.refine_rejected = edge_graph.solve(len(run.scans), found, min(placed),
+                                                                         run.noise(), o.seed)
+        dropped = [s for s in placed if s not in run.placed()]
         if dropped:
             warnings.warn(f"scans {dropped}: no edge consistent with the others after refinement; left out",
                           LeftOutWarning, stacklevel=3)
-            placed = [s for s in placed if s not in dropped]
+            placed = run.placed()
     if o.refine == "joint" and len(placed) > 1:
-        with clock.stage("refine"):
-            poses, final_edges, final_rejected = _refine_jointly(scans, poses, placed, max_dist, o,
-                                                                 lambda e: good(e, o.min_overlap),
-                                                                 ticker("joint refinement stages"))
-            counts["refine"] = len(final_edges) + len(final_rejected)
-    if o.refine == "none" and global_edges:
-        with clock.stage("graph"):
-            poses, final_edges, final_rejected = _solve(num_scans, final_edges, min(placed), network_noise, o.seed)
+        with run.clock.stage("refine"):
+            run.poses, run.edges, run.refine_rejected = refinement.jointly(
+                run.scans, run.poses, placed, run.max_dist, o, keep, run.tick("joint refinement stages"))
+            run.counts["refine"] = len(run.edges) + len(run.refine_rejected)
+    if o.refine == "none" and run.global_edges:
+        with run.clock.stage("graph"):
+            run.poses, run.edges, run.refine_rejected = edge_graph.solve(
+                len(run.scans), run.edges, min(placed), run.noise(NETWORK_NOISE_SCALE), o.seed)
 
-    if pending:
-        warnings.warn(f"scans {pending} overlap none of the placed scans (no registration onto them reached "
-                      f"fitness {o.min_fitness} with coinciding surfaces); left out", LeftOutWarning, stacklevel=3)
-    left_out = tuple(s for s in range(num_scans) if not np.isfinite(poses[s, 0, 0]))
-    first = min(s for s in range(num_scans) if s not in left_out)
-    poses = offsets.unshift_transforms(np.linalg.inv(poses[first]) @ poses, shift)  # NaN rows stay NaN
-    return ScanAlignment(poses, _unshifted(final_edges, shift), _unshifted(rejected + final_rejected, shift), left_out,
-                         voxel, max_dist, clock.timings(), tuple(sorted(set(resting + doubtful) - set(left_out))),
-                         counts)
+
+def _answer(run: _Run) -> ScanAlignment:
+    """The poses relative to the first placed scan and the edges, moved back by the shift; what was left out."""
+    if run.pending:
+        warnings.warn(f"scans {run.pending} overlap none of the placed scans (no registration onto them reached "
+                      f"fitness {run.options.min_fitness} with coinciding surfaces); left out", LeftOutWarning,
+                      stacklevel=3)
+    left_out = tuple(s for s in range(len(run.scans)) if s not in run.placed())
+    first = min(run.placed())
+    poses = offsets.unshift_transforms(np.linalg.inv(run.poses[first]) @ run.poses, run.shift)  # NaN stays NaN
+    return ScanAlignment(poses, _unshifted(run.edges, run.shift), _unshifted(run.rejected + run.refine_rejected,
+                                                                              run.shift),
+                         left_out, run.prepared.voxel, run.max_dist, run.clock.timings(),
+                         tuple(sorted(run.likely_wrong - set(left_out))), run.counts)
 
 
 def _unshifted(edges, shift) -> tuple:

@@ -100,11 +100,16 @@ def features(alignment, centre, radius) -> np.ndarray:
 
 class Model:
     """The shipped model: ``score = ((x - mean) / scale) · coef + intercept``, then Platt's calibration
-    ``p = 1 / (1 + exp(-(platt_a · score + platt_b)))``; ``threshold``: the default bar of ``likely_wrong``."""
+    ``p = 1 / (1 + exp(-(platt_a · score + platt_b)))``; ``threshold``: the default bar of ``likely_wrong``.
+    ``FEATURES``: the names this code makes, which the file's must equal (a subclass names its own)."""
+
+    FEATURES = FEATURES
+    NAME = "doubt model"
 
     def __init__(self, spec: dict):
-        if tuple(spec["features"]) != FEATURES:
-            raise ValueError(f"the doubt model was fitted on features {spec['features']}, this code makes {FEATURES}")
+        if tuple(spec["features"]) != self.FEATURES:
+            raise ValueError(f"the {self.NAME} was fitted on features {spec['features']}, this code makes "
+                             f"{self.FEATURES}")
         self.mean, self.scale = np.asarray(spec["mean"], np.float64), np.asarray(spec["scale"], np.float64)
         self.coef, self.intercept = np.asarray(spec["coef"], np.float64), float(spec["intercept"])
         self.platt_a, self.platt_b = float(spec["platt_a"]), float(spec["platt_b"])
@@ -119,11 +124,16 @@ class Model:
         return 1.0 / (1.0 + np.exp(-(self.platt_a * self.score(x) + self.platt_b)))
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=8)
+def read_model(model_class: type, path: str):
+    """A ``model_class`` (:class:`Model` or a subclass) of a JSON file, read once."""
+    with open(path) as f:
+        return model_class(json.load(f))
+
+
 def load(path: str = MODEL_PATH) -> Model:
     """The model of a JSON file (default the shipped one), read once."""
-    with open(path) as f:
-        return Model(json.load(f))
+    return read_model(Model, path)
 
 
 def p_wrong(alignment, model: Model | None = None) -> tuple:

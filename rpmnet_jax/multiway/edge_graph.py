@@ -1,0 +1,89 @@
+"""Steps 2–3 of :func:`rpmnet_jax.align_scans` on the pair edges as a graph: each classical answer rated by the
+edge doubt model and screened, the robust pose graph of the edges, and the scans whose poses rest on doubt.
+
+An edge's ``p_wrong`` (:class:`~rpmnet_jax.multiway.edges.Edge`) is set here; edges not rated carry 0 (sure).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rpmnet_jax.geometry import visibility
+from rpmnet_jax.multiway import edge_doubt, pose_graph
+
+FREE_SPACE_MARGIN = 2.0  # the free-space check's margin, × the correspondence distance (noise, the bins' spread)
+
+
+def screened(answers_per_pair, max_dist: float, good, reject: bool, visible=None) -> list:
+    """Each pair's good answers (``good(edge)``), each with its ``p_wrong``, less those at ``p_wrong ≥
+    reject_threshold`` when ``reject`` and those ``visible(edge)`` refuses (an answer that puts one scan in the
+    space the other's sensor saw through): ``[[edge, ...] per pair]``."""
+    model = edge_doubt.load()
+    found = []
+    for answers, p in zip(answers_per_pair, edge_doubt.p_wrong_of_pairs(answers_per_pair, max_dist, model)):
+        rated = [e._replace(p_wrong=float(q)) for e, q in zip(answers, p)]
+        found.append([e for e in rated if good(e) and not (reject and e.p_wrong >= model.reject_threshold)
+                      and (visible is None or visible(e))])
+    return found
+
+
+def free_space_check(scans, sensors, max_dist: float):
+    """``visible(edge) -> bool``: whether the edge keeps each scan out of the other's free space
+    (:mod:`rpmnet_jax.geometry.visibility`, margin ``FREE_SPACE_MARGIN × max_dist``); edges between scans without
+    known sensors pass."""
+    images = {}
+
+    def image(k):
+        if k not in images:
+            images[k] = visibility.range_image(scans[k].points, sensors[k])
+        return images[k]
+
+    def visible(e) -> bool:
+        if sensors[e.source] is None or sensors[e.target] is None:
+            return True
+        return visibility.violation(scans[e.source].points, image(e.source), scans[e.target].points,
+                                    image(e.target), e.transform, FREE_SPACE_MARGIN * max_dist
+                                    ) <= visibility.MAX_FREE_SPACE_SHARE
+    return visible
+
+
+def doubt_weights(edges) -> list:
+    """``[fitness × (1 − p_wrong), ...]``: how the consensus ranks ``edges`` with ``edge_doubt="weigh"``."""
+    return [e.fitness * (1.0 - e.p_wrong) for e in edges]
+
+
+def resting_on_doubt(num_scans: int, kept_edges, anchor: int, threshold: float | None = None) -> list:
+    """The scans whose every path to ``anchor`` over ``kept_edges`` crosses one with ``p_wrong`` at or above
+    ``threshold`` (default the edge doubt model's)."""
+    threshold = edge_doubt.load().threshold if threshold is None else threshold
+    flagged = [e.p_wrong >= threshold for e in kept_edges]
+    pairs = [(e.source, e.target) for e in kept_edges]
+    return np.flatnonzero(edge_doubt.resting_on_flagged(num_scans, pairs, flagged, anchor)).tolist()
+
+
+def edge_information(info: np.ndarray, rot_sigma: float, trans_sigma: float) -> np.ndarray:
+    """``(inv(info) + C)⁻¹`` with ``C`` the diagonal noise floor, computed without inverting a singular ``info``."""
+    c_inv = np.diag([rot_sigma ** -2] * 3 + [trans_sigma ** -2] * 3)
+    return c_inv - c_inv @ np.linalg.solve(info + c_inv, c_inv)
+
+
+def solve(num_scans: int, edges, anchor: int, noise: tuple, seed: int, weights=None) -> tuple:
+    """Robust pose graph of ``edges`` (``noise``: the floor's rotation and translation sigmas), its consensus
+    ranking them by ``weights`` (default their fitness): (poses ``(S, 4, 4)``, NaN off the anchor's component of
+    the kept edges; kept edges of that component; rejected edges)."""
+    pairs = [(e.source, e.target) for e in edges]
+    used = pose_graph.component(num_scans, pairs, anchor)
+    info = [edge_information(e.information, *noise) for e in edges]
+    sol = pose_graph.optimize(num_scans, pairs, [e.transform for e in edges], info, anchor,
+                              weights=[e.fitness for e in edges] if weights is None else weights, seed=seed)
+    rejected = [e for e, ok in zip(edges, sol.inlier) if used[e.source] and not ok]
+    kept = [e for e, ok in zip(edges, sol.inlier) if ok]
+    nodes = pose_graph.component(num_scans, [(e.source, e.target) for e in kept], anchor)
+    poses = np.where(nodes[:, None, None], sol.poses, np.nan)
+    return poses, [e for e in kept if nodes[e.source]], rejected
+
+
+def largest_component(num_scans: int, edges) -> int:
+    """The first scan of the largest connected component of ``edges``."""
+    labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
+    return int(np.argmax(labels == np.argmax(np.bincount(labels))))

@@ -1,0 +1,60 @@
+"""Step 1 of :func:`rpmnet_jax.align_scans`: the scans ready for pairing, and the pairs to register.
+
+Each scan cleaned, moved by the set's common shift (float64: the shift loses nothing), voxel-downsampled at the
+set's voxel (:mod:`rpmnet_jax.multiway.sizes`), with normals (the caller's averaged per voxel, else estimated and
+facing the scan's sensor where one is known, else away from its centroid) and the FPFH of its keypoints
+(:func:`rpmnet_jax.multiway.edges.make_scan`).
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import NamedTuple
+
+import numpy as np
+
+from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling
+from rpmnet_jax.multiway import candidate_pairs, edges as edges_lib, sizes
+
+MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
+
+
+class Prepared(NamedTuple):
+    scans: list  # edges.Scan of each scan, moved by -shift
+    voxel: float  # caller's units
+    sensors: list  # each scan's sensor (3,) in the moved frame, or None
+    scene: bool  # scans seen from inside a scene (sizes.voxel)
+
+
+def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="auto") -> Prepared:
+    """The scans ``clouds[i] (N_i, 3)`` (``normals``: ``None`` or one ``(N_i, 3)`` or ``None`` per scan) moved by
+    ``-shift (3,)``, at ``voxel_size`` (``None``: :func:`~rpmnet_jax.multiway.sizes.voxel`'s default), their
+    sensors from ``viewpoints`` (:func:`~rpmnet_jax.multiway.sizes.sensors`)."""
+    if len(clouds) < 2:
+        raise ValueError(f"need at least two scans, got {len(clouds)}")
+    normals = [None] * len(clouds) if normals is None else list(normals)
+    if len(normals) != len(clouds):
+        raise ValueError(f"got {len(normals)} normal arrays for {len(clouds)} scans")
+    cleaned = [cloud.clean_cloud(f"scan {i}", c, n)[:2] for i, (c, n) in enumerate(zip(clouds, normals))]
+    seen_from = [None if v is None else v - shift for v in sizes.sensors([p for p, _ in cleaned], viewpoints)]
+    cleaned = [(p - shift, n) for p, n in cleaned]
+    voxel, scene = sizes.voxel([p for p, _ in cleaned], seen_from, voxel_size)
+    scans = []
+    for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from)):
+        p, n = sampling.voxel_downsample(p, n, voxel)
+        if len(p) < MIN_VOXEL_POINTS:
+            raise ValueError(f"scan {i}: {len(p)} points after voxel downsampling at {voxel:.4g}; "
+                             "a smaller voxel size is needed")
+        if n is None:
+            n = normals_lib.estimate_normals(p) if sensor is None else normals_lib.facing(p, sensor)
+        scans.append(edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=i))
+    return Prepared(scans, voxel, seen_from, scene)
+
+
+def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int) -> list:
+    """``[(i, j), ...]``, ``i < j``: every pair up to ``all_pairs_up_to`` scans, else each scan with its
+    ``neighbours`` best partners by the bag-of-words overlap score and a spanning tree of those scores
+    (:mod:`rpmnet_jax.multiway.candidate_pairs`), whatever the order of the scans."""
+    if len(scans) <= all_pairs_up_to:
+        return list(itertools.combinations(range(len(scans)), 2))
+    return candidate_pairs.select_pairs(candidate_pairs.overlap_scores(scans, seed=seed), neighbours)

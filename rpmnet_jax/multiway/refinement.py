@@ -1,0 +1,51 @@
+"""Step 5 of :func:`rpmnet_jax.align_scans`: the placed scans refined on the pairs predicted to overlap, jointly
+(:mod:`rpmnet_jax.multiway.joint_refine`) or by rounds of pairwise ICP edges."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from rpmnet_jax.multiway import edges as edges_lib, joint_refine
+from rpmnet_jax.ops import se3
+
+
+def overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=None) -> list:
+    """``[(i, j), ...]``, ``i < j``: the placed pairs predicted to overlap by ``min_overlap`` at ``poses`` (the
+    pairs whose bounding spheres lie apart are not looked at); with ``neighbours``, of those only each scan's
+    ``neighbours`` most overlapping ones (their union)."""
+    means = {s: scans[s].points.mean(axis=0) for s in placed}  # each scan's centre in its own frame
+    centres = {s: se3.apply(poses[s], means[s][None])[0] for s in placed}
+    radii = {s: float(np.max(np.linalg.norm(scans[s].points - means[s], axis=1))) for s in placed}
+    near = [(i, j) for i, j in itertools.combinations(sorted(placed), 2)
+            if np.linalg.norm(centres[i] - centres[j]) <= radii[i] + radii[j] + max_dist]
+    overlap = {(i, j): edges_lib.predicted_overlap(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist)
+               for i, j in near}
+    pairs = [p for p in near if overlap[p] >= min_overlap]
+    if neighbours is None:
+        return pairs
+    best = set()
+    for s in placed:
+        mine = sorted((p for p in pairs if s in p), key=lambda p: -overlap[p])
+        best.update(mine[:neighbours])
+    return sorted(best)
+
+
+def icp_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_, tick) -> tuple:
+    """``refine="icp"``, one round: an ICP edge from the current poses for every placed pair predicted to overlap,
+    run by ``engine`` (``tick(done, total)`` as they finish): (the edges ``keep`` accepts, the number of pairs)."""
+    pairs = overlapping_pairs(scans, poses, placed, max_dist, min_overlap)
+    starts = [np.linalg.inv(poses[j]) @ poses[i] for i, j in pairs]
+    return [e for e in engine.refine_edges(pairs, starts, round_, tick) if keep(e)], len(pairs)
+
+
+def jointly(scans, poses, placed, max_dist, options, keep, tick) -> tuple:
+    """``refine="joint"``: the overlapping pairs' points refine all poses together, then each pair is measured:
+    (poses, kept edges, the other edges)."""
+    o = options
+    pairs = overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)
+    poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed, tick=tick).poses
+    measured = [edges_lib.measure(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist, "joint")
+                for i, j in pairs]
+    return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]
