@@ -1,5 +1,5 @@
 """When may ``init="auto"`` keep a weak classical answer without running the network? The measurement behind
-``alignment._trusted`` and ``options.NETWORK_DOUBT``.
+``auto.stands`` and ``options.NETWORK_DOUBT``.
 
     python -m experiments.network_trust [--data-roots ../shared/data/modelnet40_real_subset,...]
         [--meshes 16] [--scans 12] [--output network_trust.jsonl] [--bars 0.05,0.1,0.15,0.2]
@@ -17,7 +17,7 @@ Prints one JSON line per kind, bar and rule: of the weak answers (a classical hy
 fitness below ``network_fitness`` or ambiguous; with none found ``auto`` runs the network anyway) how many each
 rule trusts and how many of those are more than 5° off, per ``p_wrong`` bar (``--bars``; default the shipped
 ``GlobalOptions().network_doubt``). The rules: the doubt model alone (``p_wrong`` below the bar, fitness at least
-``NETWORK_DOUBT_FLOOR``, not ambiguous: the default); the same answer also unopposed (one distinct candidate: every
+``auto.DOUBT_FLOOR``, not ambiguous: the default); the same answer also unopposed (one distinct candidate: every
 classical hypothesis ended in it); and unopposed or decided by RANSAC (fewer than ``GlobalOptions.classical``
 hypotheses were worth refining: the default while the doubt model was fitted on crops alone).
 """
@@ -88,14 +88,14 @@ def scan_records(num_meshes: int, num_scans: int):
 def summary(records: list, bars=None) -> list:
     """Per kind, ``p_wrong`` bar (default ``GlobalOptions().network_doubt``) and rule: weak answers, trusted ones and
     the wrong among them."""
-    from rpmnet_jax.pairwise import options
+    from rpmnet_jax.pairwise import auto, options
     opts = options.GlobalOptions()
     out = []
     for kind, bar in itertools.product(sorted({r["kind"] for r in records}), bars or (opts.network_doubt,)):
         of_kind = [r for r in records if r["kind"] == kind]
         found = [r for r in of_kind if r["init"] != "identity"]  # none found: the network runs anyway
         weak = [r for r in found if r["fitness"] < opts.network_fitness or r["ambiguous"]]
-        doubt_only = lambda r: (not r["ambiguous"] and r["fitness"] >= options.NETWORK_DOUBT_FLOOR
+        doubt_only = lambda r: (not r["ambiguous"] and r["fitness"] >= auto.DOUBT_FLOOR
                                 and r["p_wrong"] < bar)
         unopposed = lambda r: doubt_only(r) and r["distinct"] == 1
         decided = lambda r: doubt_only(r) and (r["distinct"] == 1 or r.get("starts", opts.classical) < opts.classical)

@@ -122,26 +122,26 @@ def test_a_weak_classical_answer_in_doubt_runs_the_network():
 
 
 def test_a_weak_answer_is_trusted_only_when_sure_not_ambiguous_and_not_too_weak():
-    """``_trusted``: below ``NETWORK_DOUBT_FLOOR`` the network runs whatever the doubt (the doubt model is least
+    """``auto.stands``: below ``auto.DOUBT_FLOOR`` the network runs whatever the doubt (the doubt model is least
     sure of a lone answer of low fitness); at or above it, when ``p_wrong`` is below the bar and the answer is not
     ambiguous, whether or not other classical hypotheses ended elsewhere."""
     import types
 
-    from rpmnet_jax.pairwise import alignment, options
+    from rpmnet_jax.pairwise import auto
 
     opts = rpmnet_jax.GlobalOptions()
     cand = lambda *inits: types.SimpleNamespace(support=inits)
     answer = lambda **kw: types.SimpleNamespace(**{"candidates": (cand("classical"),), "fitness": 0.5,
                                                    "p_wrong": 0.001, "ambiguous": False, **kw})
-    assert alignment._trusted(answer(), opts)
-    assert not alignment._trusted(answer(fitness=options.NETWORK_DOUBT_FLOOR - 0.01), opts)
-    assert alignment._trusted(answer(fitness=options.NETWORK_DOUBT_FLOOR), opts)
-    assert not alignment._trusted(answer(p_wrong=opts.network_doubt), opts)
-    assert alignment._trusted(answer(p_wrong=0.99 * opts.network_doubt), opts)
-    assert not alignment._trusted(answer(), ALWAYS)
+    assert auto.stands(answer(), opts)
+    assert not auto.stands(answer(fitness=auto.DOUBT_FLOOR - 0.01), opts)
+    assert auto.stands(answer(fitness=auto.DOUBT_FLOOR), opts)
+    assert not auto.stands(answer(p_wrong=opts.network_doubt), opts)
+    assert auto.stands(answer(p_wrong=0.99 * opts.network_doubt), opts)
+    assert not auto.stands(answer(), ALWAYS)
     every = (cand("classical", "classical"), cand("classical"), cand("classical"))  # 4 refined, 2 distinct rivals
-    assert alignment._trusted(answer(candidates=every), opts)  # opposed: the doubt model weighs the rivals
-    assert not alignment._trusted(answer(candidates=every, ambiguous=True), opts)
+    assert auto.stands(answer(candidates=every), opts)  # opposed: the doubt model weighs the rivals
+    assert not auto.stands(answer(candidates=every, ambiguous=True), opts)
 
 
 def _bunny(*names):
@@ -159,14 +159,14 @@ def test_the_bunny_pair_a_crops_only_doubt_model_trusted_wrongly_runs_the_networ
     0.57. The doubt model fitted on crops alone gave it ``p_wrong`` 0.005 (its trust rule needed the answer
     unopposed as well); the shipped one, fitted on simulated range scans of training meshes too, gives 0.43, so
     the network runs and the answer ends right (measured 0.37°)."""
-    from rpmnet_jax.pairwise import options, starts
+    from rpmnet_jax.pairwise import auto, starts
 
     monkeypatch.setattr(starts, "DENSE_FACTOR", 10 ** 9)  # the samples' hypotheses, whatever the density
     (src, ref), truth = _bunny("bun270", "bun180")
     gt = np.linalg.inv(truth["bun180"]) @ truth["bun270"]
     classical = rpmnet_jax.align(src, ref, init="classical")
     assert rotation_error_deg(classical.transform[:3, :3], gt[:3, :3]) > 40.0
-    assert classical.fitness >= options.NETWORK_DOUBT_FLOOR and not classical.ambiguous
+    assert classical.fitness >= auto.DOUBT_FLOOR and not classical.ambiguous
     assert classical.p_wrong >= rpmnet_jax.GlobalOptions().network_doubt
     a = rpmnet_jax.align(src, ref)
     assert rotation_error_deg(a.transform[:3, :3], gt[:3, :3]) < 1.0 and "network" in a.stages

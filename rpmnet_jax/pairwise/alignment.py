@@ -62,7 +62,7 @@ from rpmnet_jax import config as config_lib, stopwatch
 from rpmnet_jax.geometry import sampling as sampling_lib, scoring, sensors, threads, visibility
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import candidates as candidates_lib, global_search, options as options_lib, prepare
-from rpmnet_jax.pairwise import doubt, starts as starts_lib
+from rpmnet_jax.pairwise import auto, doubt, starts as starts_lib
 from rpmnet_jax.weights import loading
 
 DEFAULT_RELATIVE_DISTANCE = 0.05  # chosen on 40 real ModelNet40 partial pairs (see above; tuning data)
@@ -142,84 +142,73 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
             icp=refine == "icp", dense_points=refine_options.points if (refine == "icp" or init != "local") else None,
             max_correspondence_distance=max_correspondence_distance, relative_distance=DEFAULT_RELATIVE_DISTANCE)
         free_space = _free_space(inputs)  # scans taken from their frame origins: what each sensor saw, made once
-    pair, dense, max_dist_unit = inputs.pair, inputs.dense, inputs.max_distance_unit
-    cfg = cfg or config_lib.RPMNetConfig()
     if params is None and checkpoint is not None:  # a caller's checkpoint is checked (and refused) up front
         params = loading.load_params(checkpoint)
-
-    def network_params():  # the shipped model is loaded when the network runs: a classical answer never reads it
-        nonlocal params
-        params = params if params is not None else loading.load_params(checkpoint)
-        return params
-
-    # 2-3. starts, each refined and scored as it comes: classical first, the network when they are weak, the
-    # network's global search when still no answer is good
-    def refined(starts, strong: float = 1.0) -> list:
-        with clock.stage("refine"):
-            return candidates_lib.refine_starts(starts, dense, max_dist_unit, refine, refine_options, strong)
-
-    found = []
-    if init != "local":
-        classical = []
-        if global_options.classical:
-            with clock.stage("classical"):
-                classical = starts_lib.classical_starts(pair, global_options.classical, seed)
-        if not classical and init in ("classical", "global"):  # no hypothesis: the clouds as they lie
-            classical = [starts_lib.identity_start()]
-        strong = global_options.network_fitness if init == "auto" else 1.0  # auto ends on a strong answer
-        found += refined(classical, strong) if classical else []
-    if (init == "auto" and found and 0 < global_options.network_doubt and global_options.network_fitness < 1.0
-            and _needs_network(found, global_options)):
-        with clock.stage("refine"):  # the answer the classical candidates give: kept when it is not in doubt
-            selection = candidates_lib.select(found, dense, max_dist_unit, refine, refine_options)
-        classical_answer = _report(inputs, selection, src_points, clock, free_space)
-        if _trusted(classical_answer, global_options):
+    search = _Search(inputs, clock, refine, refine_options, global_options, cfg or config_lib.RPMNetConfig(), params,
+                     seed)
+    opts = global_options  # 2-3. starts, each refined and scored as it comes (auto: pairwise.auto decides)
+    found = search.classical(init) if init != "local" else []
+    if init == "auto" and found and auto.may_stand(opts) and auto.weak(found, opts):
+        classical_answer = _report(inputs, search.select(found), src_points, clock, free_space)
+        if auto.stands(classical_answer, opts):
             return classical_answer
-    if init == "local" or (init == "auto" and _needs_network(found, global_options)):
-        with clock.stage("network"):
-            local = starts_lib.local_start(network_params(), pair, cfg, num_iters)
-        found += refined([local])
-    if init == "global" or (init == "auto" and max((c.score[1] for c in found), default=0.0)
-                            < global_options.auto_fitness and (global_options.auto_fitness >= 1.0
-                                                               or not _confirmed(found))):
-        with clock.stage("global"):
-            screened = global_search.screen_hypotheses(network_params(), pair, dense, cfg, global_options,
-                                                       max_dist_unit, seed)
-        if refine != "icp":  # the network's answers as they are
+    if init == "local" or (init == "auto" and auto.runs("network", found, opts)):
+        found += search.local(num_iters)
+    if init == "global" or (init == "auto" and auto.runs("global", found, opts)):
+        found += search.global_search()
+    # 4-5. select the distinct answers, best first; report in the caller's units, on the full clouds
+    return _report(inputs, search.select(found), src_points, clock, free_space)
+
+
+class _Search:
+    """The starts of one :func:`align` call, each refined as it comes (step 2–3), and the final selection."""
+
+    def __init__(self, inputs, clock, refine, refine_options, global_options, cfg, params, seed):
+        self.inputs, self.clock, self.refine, self.refine_options = inputs, clock, refine, refine_options
+        self.opts, self.cfg, self._params, self.seed = global_options, cfg, params, seed
+
+    def params(self):
+        """The network's parameters: the shipped model is loaded when the network runs (a classical answer never
+        reads it)."""
+        self._params = self._params if self._params is not None else loading.load_params(None)
+        return self._params
+
+    def refined(self, starts, strong: float = 1.0) -> list:
+        with self.clock.stage("refine"):
+            return candidates_lib.refine_starts(starts, self.inputs.dense, self.inputs.max_distance_unit, self.refine,
+                                                self.refine_options, strong)
+
+    def classical(self, init: str) -> list:
+        """FPFH + RANSAC hypotheses refined (the identity for ``classical``/``global`` when there are none; auto
+        ends a candidate's refinement early below a strong one's)."""
+        starts = []
+        if self.opts.classical:
+            with self.clock.stage("classical"):
+                starts = starts_lib.classical_starts(self.inputs.pair, self.opts.classical, self.seed)
+        if not starts and init in ("classical", "global"):  # no hypothesis: the clouds as they lie
+            starts = [starts_lib.identity_start()]
+        return self.refined(starts, self.opts.network_fitness if init == "auto" else 1.0) if starts else []
+
+    def local(self, num_iters: int) -> list:
+        """The network from the identity, refined."""
+        with self.clock.stage("network"):
+            start = starts_lib.local_start(self.params(), self.inputs.pair, self.cfg, num_iters)
+        return self.refined([start])
+
+    def global_search(self) -> list:
+        """The network from the rotation hypotheses, screened, the best refined (as they are with refine none)."""
+        with self.clock.stage("global"):
+            screened = global_search.screen_hypotheses(self.params(), self.inputs.pair, self.inputs.dense, self.cfg,
+                                                       self.opts, self.inputs.max_distance_unit, self.seed)
+        if self.refine != "icp":
             screened = [s._replace(transform=s.network_transforms[-1]) for s in screened]
-        found += refined(screened)
+        return self.refined(screened)
 
-    with clock.stage("refine"):  # 4. select: the distinct answers, best first, the best one's refinement finished
-        selection = candidates_lib.select(found, dense, max_dist_unit, refine, refine_options)
-    # 5. report: in the caller's units, on the full clouds
-    return _report(inputs, selection, src_points, clock, free_space)
-
-
-def _trusted(answer: "Alignment", opts: options_lib.GlobalOptions) -> bool:
-    """Whether a weak classical ``answer`` (fitness below ``opts.network_fitness``) stands without the network: not
-    ambiguous, its fitness at least ``options.NETWORK_DOUBT_FLOOR`` and its ``p_wrong`` below ``opts.network_doubt``."""
-    return (not answer.ambiguous and answer.fitness >= options_lib.NETWORK_DOUBT_FLOOR
-            and answer.p_wrong < opts.network_doubt)
-
-
-def _needs_network(found: list, opts: options_lib.GlobalOptions) -> bool:
-    """``init="auto"`` runs the network when the best refined classical candidate (by selection score) has a
-    fitness below ``opts.network_fitness`` (always at 1), or is ambiguous (a flip scores close to it: the
-    network's start may tell them apart), or there is none."""
-    if not found or opts.network_fitness >= 1.0:
-        return True
-    ranked = candidates_lib.distinct(found)
-    return ranked[0].score[1] < opts.network_fitness or candidates_lib.is_ambiguous(ranked)
-
-
-def _confirmed(found: list) -> bool:
-    """Whether the best distinct candidate is reached from a classical start and from the network's local start
-    alone (within ``AMBIGUITY_DEG``) and nothing else scores close to it: two independent starts agree."""
-    ranked = candidates_lib.distinct(found)
-    if candidates_lib.is_ambiguous(ranked):
-        return False
-    inits = candidates_lib.support(ranked[:1], found)[0]
-    return "classical" in inits and "local" in inits
+    def select(self, found: list) -> candidates_lib.Selection:
+        """The distinct answers, best first, the best one's refinement finished."""
+        with self.clock.stage("refine"):
+            return candidates_lib.select(found, self.inputs.dense, self.inputs.max_distance_unit, self.refine,
+                                         self.refine_options)
 
 
 def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_points,

@@ -45,22 +45,7 @@ class RefineOptions:
         return {f: getattr(self, f) for f in fields if getattr(self, f) is not None}
 
 
-NETWORK_DOUBT = 0.15  # a weak classical answer (not ambiguous, fitness at least NETWORK_DOUBT_FLOOR) stands without
-# the network when its p_wrong is below this. The doubt model is fitted on crops AND simulated range scans of training
-# meshes (experiments/fit_doubt.py; out of fold, no trusted weak scan answer is wrong up to 0.2). On pairs it never
-# saw (python -m experiments.network_trust), at 0.05 / 0.1 / 0.15 / 0.2: the public sets' partial test pairs trust
-# 92 / 122 / 130 / 134 of 173 weak answers, none wrong; simulated scans of 16 other training meshes 6 (2 wrong) / 8 (2)
-# / 12 (2) / 14 (4) of 384 weak, at 1,024 points 0 / 3 (1) / 9 (4) / 16 (7) of 468, and the network rescues none of
-# the wrong ones below 0.15 (one at p_wrong 0.186); none of the 52 weak answers of the 90 ordered bunny scan pairs
-# below 0.2 (5 below 0.3, 1 wrong). The bar was set between these (docs/results.md#when-the-network-runs). The
-# model fitted on crops alone trusted bun270 -> bun180 45.7 deg off at p_wrong 0.005 (now 0.43): its rule needed
-# the answer unopposed or decided by RANSAC as well. Chosen on the public sets' 610 partial test pairs, simulated scans
-# of the 16 'held-out' meshes and the bunny's 90 ordered pairs (tuning data: numbers on that data are not held-out)
-NETWORK_DOUBT_FLOOR = 0.45  # below this fitness a weak answer runs the network whatever its doubt: the doubt model is
-# least sure of a lone answer of low fitness (planted 150-164 deg hypotheses end at fitness 0.12-0.24 with p_wrong
-# 0.12-0.64; the crops-only model gave 0.01-0.04); the weak answers the crops-only model trusted on the public sets'
-# partial pairs had fitness 0.457 and up. Chosen on the public sets' partial test pairs and 12 planted lone hypotheses,
-# kept on the 16 'held-out' meshes' scans and the bunny's 90 pairs (tuning data: numbers on that data are not held-out)
+NETWORK_DOUBT = 0.15  # GlobalOptions.network_doubt; chosen on tuning data, measurements in docs/pipeline.md (step 2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,9 +56,9 @@ class GlobalOptions:
     rotation-invariant, at least 45° apart) join the candidates of ``auto`` and ``global`` (0: none).
     ``auto`` refines them first and runs the network from the identity only when the best one is ambiguous (a
     flip scores close to it), or when its fitness is below ``network_fitness`` (always at 1) and either below
-    ``NETWORK_DOUBT_FLOOR`` (0.45) or the answer it would give is at least ``network_doubt`` likely wrong
-    (``p_wrong`` of :mod:`rpmnet_jax.pairwise.doubt`, default 0.15; 0: the network runs on every weak answer;
-    see ``NETWORK_DOUBT``).
+    ``auto.DOUBT_FLOOR`` (0.45) or the answer it would give is at least ``network_doubt`` likely wrong
+    (``p_wrong`` of :mod:`rpmnet_jax.pairwise.doubt`, default 0.15; 0: the network runs on every weak answer).
+    The whole decision: :mod:`rpmnet_jax.pairwise.auto`.
     The network's global search (``init="global"``, or ``"auto"`` when no candidate reaches a fitness of
     ``auto_fitness`` and the best is not confirmed by a classical and the network's own start together; at 1:
     always): ``hypotheses``, ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened
