@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import typing
 import warnings
 
 from rpmnet_jax.cli import runtime
@@ -139,60 +140,107 @@ def _engine(args) -> tuple:
 
 
 def main(argv=None) -> int:
+    """Read → align → write → report; ``0``, or ``2`` (bad input: one line, nothing written), ``1`` (a pair task
+    that kills its workers)."""
     args = _parser().parse_args(argv)
-    import numpy as np
-
     from rpmnet_jax import stopwatch
-    from rpmnet_jax.geometry import sampling
-    from rpmnet_jax.io import clouds as cloud_io, poses as poses_io
-    from rpmnet_jax.multiway import options as options_lib, pair_engine, scan_alignment
-    from rpmnet_jax.ops import se3
-    from rpmnet_jax.weights import loading
+    from rpmnet_jax.multiway import pair_engine
 
     clock = stopwatch.Stopwatch()
     try:
-        if args.plot:
-            from rpmnet_jax.cli import plots
-            plots.check_available()
-        if args.html:
-            from rpmnet_jax.report import pages
-            pages.check_path(args.html)
-        runtime.check_outputs(args.out_poses, args.out_merged, args.plot, args.html)
-        scheduler, cache = _engine(args)
-        if args.out_merged:
-            cloud_io.check_format(args.out_merged)
-        if args.merged_voxel is not None and not args.merged_voxel > 0:
-            raise ValueError(f"--merged-voxel must be > 0, got {args.merged_voxel}")
-        paths, scans, stored, notes = _read_scans(_scan_paths(args.scans), args.columns)
-        clouds = [(c.points, c.normals) for c in scans]  # in a multi-scan E57 file's frame when it has poses
-        if args.checkpoint is None and not loading.has_default():
-            raise ValueError("no shipped model in this install; pass --checkpoint")
+        scheduler, cache = _check_outputs(args)
+        scans = _read(args)
         t_read = clock.elapsed()
-        options = options_lib.ScanOptions(voxel_size=args.voxel_size, refine=args.refine, seed=args.seed,
-                                          max_correspondence_distance=args.max_correspondence_distance)
-        bars = runtime.ProgressBars(args.quiet)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            try:
-                result = scan_alignment.align_scans([c for c, _ in clouds], [n for _, n in clouds], options=options,
-                                                    viewpoints=_viewpoints(stored, args.viewpoints),
-                                                    checkpoint=args.checkpoint, progress=bars,
-                                                    scheduler=scheduler, cache=cache)
-            finally:
-                bars.close()
+        result, caught = _align(args, scans, scheduler, cache)
     except (ValueError, OSError) as e:  # bad input, or a file that is missing, a folder, or unreadable
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
     except pair_engine.PairTaskError as e:  # a pair that kills the workers running it
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 1
-    names = [os.path.basename(p) for p in paths]
-    for note in notes:
+    _say(scans, result, caught, clock.elapsed(), t_read)
+    if cache is not None:
+        print(f"cache {args.cache}: {cache.reused} pair results reused, {cache.written} computed and written")
+    moved = _write(args, scans, result)
+    if args.plot:
+        from rpmnet_jax.cli import plots
+        plots.plot_scans(args.plot, {"registered scans": [moved.get(s) for s in range(len(scans.names))]},
+                         scans.names)
+    if args.html:
+        from rpmnet_jax.report import pages
+        pages.scans_report(args.html, [moved.get(s) for s in range(len(scans.names))], scans.names,
+                           _report_numbers(result, scans.names, scans.clouds, clock.elapsed()))
+    return 0
+
+
+class _Scans(typing.NamedTuple):
+    names: list  # file names (a multi-scan E57's scans: their own names or FILE.e57#i)
+    clouds: list  # io.columns.Cloud of each scan, in a multi-scan E57 file's frame when it has poses
+    stored: list  # (4, 4) each scan's stored pose (identity: none)
+    notes: list  # lines to print
+
+
+def _check_outputs(args) -> tuple:
+    """Every output path and option checked before anything is read: ``(scheduler, PairCache or None)``."""
+    from rpmnet_jax.io import clouds as cloud_io
+
+    if args.plot:
+        from rpmnet_jax.cli import plots
+        plots.check_available()
+    if args.html:
+        from rpmnet_jax.report import pages
+        pages.check_path(args.html)
+    runtime.check_outputs(args.out_poses, args.out_merged, args.plot, args.html)
+    engine = _engine(args)
+    if args.out_merged:
+        cloud_io.check_format(args.out_merged)
+    if args.merged_voxel is not None and not args.merged_voxel > 0:
+        raise ValueError(f"--merged-voxel must be > 0, got {args.merged_voxel}")
+    return engine
+
+
+def _read(args) -> _Scans:
+    """The scans of the command line, and a model to register them with."""
+    from rpmnet_jax.weights import loading
+
+    paths, clouds, stored, notes = _read_scans(_scan_paths(args.scans), args.columns)
+    if args.checkpoint is None and not loading.has_default():
+        raise ValueError("no shipped model in this install; pass --checkpoint")
+    return _Scans([os.path.basename(p) for p in paths], clouds, stored, notes)
+
+
+def _align(args, scans: _Scans, scheduler, cache) -> tuple:
+    """:func:`rpmnet_jax.align_scans` with progress bars: ``(ScanAlignment, the warnings it gave)``."""
+    from rpmnet_jax.multiway import options as options_lib, scan_alignment
+
+    options = options_lib.ScanOptions(voxel_size=args.voxel_size, refine=args.refine, seed=args.seed,
+                                      max_correspondence_distance=args.max_correspondence_distance)
+    bars = runtime.ProgressBars(args.quiet)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            result = scan_alignment.align_scans([c.points for c in scans.clouds], [c.normals for c in scans.clouds],
+                                                options=options, viewpoints=_viewpoints(scans.stored, args.viewpoints),
+                                                checkpoint=args.checkpoint, progress=bars, scheduler=scheduler,
+                                                cache=cache)
+        finally:
+            bars.close()
+    return result, caught
+
+
+def _say(scans: _Scans, result, caught, seconds: float, t_read: float) -> None:
+    """The notes, warnings (scans flagged or left out, by name), the poses table and the times, on the terminal."""
+    import numpy as np
+
+    from rpmnet_jax.multiway import scan_alignment
+    from rpmnet_jax.ops import se3
+
+    names = scans.names
+    for note in scans.notes:
         print(note)
     for w in caught:
         if not issubclass(w.category, scan_alignment.LeftOutWarning):  # said below, by name
             print(f"{PROG}: warning: {w.message}", file=sys.stderr)
-    placed = [s for s in range(len(paths)) if s not in result.left_out]
     for s in result.likely_wrong:
         print(f"{PROG}: warning: {names[s]} was placed by a registration flagged likely wrong (p_wrong at or above "
               "the threshold); check its pose", file=sys.stderr)
@@ -200,7 +248,7 @@ def main(argv=None) -> int:
         print(f"{PROG}: warning: {names[s]} overlaps none of the placed scans; left out of the outputs",
               file=sys.stderr)
     print(f"{'scan':<24} {'rotation deg':>12} {'translation':>12} {'edges':>5}")
-    for s in placed:
+    for s in _placed(result, names):
         degree = sum(s in (e.source, e.target) for e in result.edges)
         print(f"{names[s]:<24} {float(se3.rotation_angle_deg(result.poses[s, :3, :3])):>12.2f} "
               f"{float(np.linalg.norm(result.poses[s, :3, 3])):>12.6g} {degree:>5}")
@@ -208,35 +256,40 @@ def main(argv=None) -> int:
         print(f"rejected edge {names[e.source]} -> {names[e.target]} ({e.stage}, fitness {e.fitness:.2f})")
     stages = "  ".join(f"{k} {v:.2f}" for k, v in result.timings.items() if k != "total")
     print(f"{len(result.edges)} edges, {len(result.rejected)} rejected; voxel {result.voxel_size:.4g}, "
-          f"max_correspondence_distance {result.max_correspondence_distance:.4g}; time {clock.elapsed():.2f} s "
+          f"max_correspondence_distance {result.max_correspondence_distance:.4g}; time {seconds:.2f} s "
           f"(read {t_read:.2f}  {stages})")
-    if cache is not None:
-        print(f"cache {args.cache}: {cache.reused} pair results reused, {cache.written} computed and written")
 
-    poses_io.write_poses(args.out_poses, [names[s] for s in placed], [result.poses[s] @ stored[s] for s in placed])
-    finite = {s: np.all(np.isfinite(clouds[s][0]), axis=1) for s in placed}  # rows align_scans dropped too
-    moved = {s: clouds[s][0][finite[s]] @ result.poses[s, :3, :3].T + result.poses[s, :3, 3] for s in placed}
-    if args.out_merged:
-        points = np.concatenate([moved[s] for s in placed])
-        normals = None
-        if all(clouds[s][1] is not None for s in placed):
-            normals = np.concatenate([clouds[s][1][finite[s]] @ result.poses[s, :3, :3].T for s in placed])
-            if not np.all(np.isfinite(normals)):
-                normals = None
-        extras = {k: np.concatenate([getattr(scans[s], k)[finite[s]] for s in placed])
-                  for k in ("colours", "intensity") if all(getattr(scans[s], k) is not None for s in placed)}
-        if args.merged_voxel:
-            points, normals = sampling.voxel_downsample(points, normals, args.merged_voxel)
-            extras = {}  # one point per voxel: colours and intensity are not averaged
-        cloud_io.write_cloud(args.out_merged, points, normals, **extras)
-    if args.plot:
-        from rpmnet_jax.cli import plots
-        plots.plot_scans(args.plot, {"registered scans": [moved.get(s) for s in range(len(paths))]}, names)
-    if args.html:
-        from rpmnet_jax.report import pages
-        pages.scans_report(args.html, [moved.get(s) for s in range(len(paths))], names,
-                           _report_numbers(result, names, clouds, clock.elapsed()))
-    return 0
+
+def _placed(result, names) -> list:
+    return [s for s in range(len(names)) if s not in result.left_out]
+
+
+def _write(args, scans: _Scans, result) -> dict:
+    """The poses (``.conf``) and, with ``--out-merged``, the placed scans as one cloud (every finite row, its
+    normals, colours and intensity when every placed scan has them): ``{scan: (N_s, 3) moved points}``."""
+    import numpy as np
+
+    from rpmnet_jax.geometry import sampling
+    from rpmnet_jax.io import clouds as cloud_io, poses as poses_io
+
+    placed, clouds = _placed(result, scans.names), scans.clouds
+    poses_io.write_poses(args.out_poses, [scans.names[s] for s in placed],
+                         [result.poses[s] @ scans.stored[s] for s in placed])
+    finite = {s: np.all(np.isfinite(clouds[s].points), axis=1) for s in placed}  # rows align_scans dropped too
+    moved = {s: clouds[s].points[finite[s]] @ result.poses[s, :3, :3].T + result.poses[s, :3, 3] for s in placed}
+    if not args.out_merged:
+        return moved
+    points, normals = np.concatenate([moved[s] for s in placed]), None
+    if all(clouds[s].normals is not None for s in placed):
+        normals = np.concatenate([clouds[s].normals[finite[s]] @ result.poses[s, :3, :3].T for s in placed])
+        normals = normals if np.all(np.isfinite(normals)) else None
+    extras = {k: np.concatenate([getattr(clouds[s], k)[finite[s]] for s in placed])
+              for k in ("colours", "intensity") if all(getattr(clouds[s], k) is not None for s in placed)}
+    if args.merged_voxel:
+        points, normals = sampling.voxel_downsample(points, normals, args.merged_voxel)
+        extras = {}  # one point per voxel: colours and intensity are not averaged
+    cloud_io.write_cloud(args.out_merged, points, normals, **extras)
+    return moved
 
 
 def _report_numbers(result, names, clouds, seconds: float) -> dict:
@@ -250,7 +303,7 @@ def _report_numbers(result, names, clouds, seconds: float) -> dict:
     def edges(found):
         return [{"source": names[e.source], "target": names[e.target], "stage": e.stage, "fitness": e.fitness,
                  "inlier RMSE": e.inlier_rmse} for e in found]
-    scans = [{"scan": names[s], "points": len(clouds[s][0]),
+    scans = [{"scan": names[s], "points": len(clouds[s].points),
               "rotation (deg)": float(se3.rotation_angle_deg(result.poses[s, :3, :3])),
               "translation": float(np.linalg.norm(result.poses[s, :3, 3])),
               "edges": sum(s in (e.source, e.target) for e in result.edges)} for s in placed]
