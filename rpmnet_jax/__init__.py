@@ -13,7 +13,7 @@ import importlib
 # The public names, imported on first use (PEP 562): ``import rpmnet_jax.io.clouds`` (reading a file, a CLI's input
 # checks) then loads neither JAX nor Flax, and ``rpmnet_jax.align`` loads what it needs when first touched.
 _PUBLIC = {
-    "RPMNetConfig": "rpmnet_jax.config", "evaluate_registration": "rpmnet_jax.geometry.scoring",
+    "RPMNetConfig": "rpmnet_jax.config", "evaluate_registration": "rpmnet_jax.classical.scoring",
     "ScanOptions": "rpmnet_jax.multiway.options", "ScanAlignment": "rpmnet_jax.multiway.scan_alignment",
     "align_scans": "rpmnet_jax.multiway.scan_alignment", "init_params": "rpmnet_jax.nn.pointnets",
     "Alignment": "rpmnet_jax.pairwise.alignment", "Answer": "rpmnet_jax.pairwise.alignment",

@@ -8,7 +8,8 @@ import pytest
 from conftest import DATA, random_pose, require
 from rpmnet_jax.data import synthetic
 from rpmnet_jax.io import clouds as cloud_io, poses as scan_poses
-from rpmnet_jax.multiway import candidate_pairs, edges, preparation
+from rpmnet_jax.multiway import candidate_pairs, preparation
+from rpmnet_jax.pair_edges import edges
 
 BUNNY = DATA / "stanford_bunny"
 

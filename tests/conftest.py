@@ -190,9 +190,9 @@ def synthetic_scans():
 
 def cropped_pair(seed: int = 0, n: int = 1200):
     """Two overlapping 70% crops (cut in different directions) of disjoint halves of ``n`` samples of
-    :func:`asymmetric_shape` as :class:`rpmnet_jax.multiway.edges.Scan` s (``(~0.35 n, 3)`` each); scan 1 lies in
+    :func:`asymmetric_shape` as :class:`rpmnet_jax.pair_edges.edges.Scan` s (``(~0.35 n, 3)`` each); scan 1 lies in
     a frame turned by 40° and moved: ``truth (4, 4)`` maps scan 0 onto scan 1."""
-    from rpmnet_jax.multiway import edges
+    from rpmnet_jax.pair_edges import edges
 
     pts, nrm = asymmetric_shape(seed, n)
     truth = np.eye(4)

@@ -11,7 +11,7 @@ import pytest
 
 import rpmnet_jax
 from conftest import asymmetric_shape, rotation_about
-from rpmnet_jax.geometry import scoring
+from rpmnet_jax.classical import scoring
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment, doubt, starts
 

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from conftest import cropped_pair, rotation_about
-from rpmnet_jax.geometry import scoring
-from rpmnet_jax.multiway import edge_doubt, edges
+from rpmnet_jax.classical import scoring
+from rpmnet_jax.multiway import edge_doubt
+from rpmnet_jax.pair_edges import edges
 from rpmnet_jax.pairwise import doubt
 
 EXAMPLES = pathlib.Path(__file__).parent / "data" / "edge_doubt_examples.json"

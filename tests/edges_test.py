@@ -7,7 +7,8 @@ import pytest
 
 import rpmnet_jax
 from conftest import asymmetric_shape, cropped_pair, rotation_about, rotation_error_deg
-from rpmnet_jax.multiway import edges, sizes
+from rpmnet_jax.pair_edges import edges
+from rpmnet_jax.multiway import sizes
 from rpmnet_jax.weights import loading
 
 MAX_DISTANCE = 0.05  # the default correspondence distance: 5% of the unit radius

@@ -1,6 +1,6 @@
 import numpy as np
 
-from rpmnet_jax.geometry import feature_ransac, fpfh
+from rpmnet_jax.classical import feature_ransac, fpfh
 
 from conftest import asymmetric_shape, rotation_about, rotation_error_deg
 

@@ -4,7 +4,7 @@ swap, clouds too small for a neighbour."""
 import numpy as np
 import pytest
 
-from rpmnet_jax.geometry import fpfh
+from rpmnet_jax.classical import fpfh
 
 from conftest import asymmetric_shape, rotation_about
 

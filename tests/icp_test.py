@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from conftest import DATA, asymmetric_shape, require, rotation_about, rotation_error_deg
-from rpmnet_jax.geometry import icp
+from rpmnet_jax.classical import icp
 
 
 def _motion(deg, axis, trans):

@@ -7,7 +7,8 @@ import numpy as np
 
 from conftest import ring_scans, rotation_about, rotation_error_deg
 from rpmnet_jax.evaluation import pose_errors
-from rpmnet_jax.multiway import joint_refine, preparation, sizes
+from rpmnet_jax.pose_graphs import joint_refine
+from rpmnet_jax.multiway import preparation, sizes
 
 
 def _perturbed(poses, degrees, shift, seed):

@@ -90,7 +90,8 @@ print("ok", kdtree.KdTree(x).query(x, k=3)[0].shape == (5000, 3))
 """
 _SMALL_ICP = """
 import numpy as np
-from rpmnet_jax.geometry import icp, kdtree
+from rpmnet_jax.classical import icp
+from rpmnet_jax.geometry import kdtree
 x = np.random.default_rng(0).normal(size=(1000, 3))
 x /= np.linalg.norm(x, axis=1, keepdims=True)
 print("ok", icp.point_to_plane_icp(x, x, x.copy(), np.eye(4), 0.05, ref_tree=kdtree.KdTree(x)).converged)

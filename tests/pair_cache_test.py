@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from rpmnet_jax.multiway import edges as edges_lib, pair_cache
+from rpmnet_jax.pair_edges import edges as edges_lib, pair_cache
 
 
 def _edge(rng):
@@ -72,8 +72,8 @@ def test_a_bad_folder_is_a_value_error(tmp_path):
 def test_a_change_to_the_code_that_computes_an_edge_starts_new_keys(tmp_path, monkeypatch):
     """The key holds a digest of the source of the code an edge depends on: one constant changed there (as an
     upgrade would) gives every edge a new name, so a resumed run recomputes instead of mixing old and new edges."""
-    assert any(p.endswith(os.path.join("geometry", "icp.py")) for p in pair_cache.source_files())
-    assert any(p.endswith(os.path.join("multiway", "edges.py")) for p in pair_cache.source_files())
+    assert any(p.endswith(os.path.join("classical", "icp.py")) for p in pair_cache.source_files())
+    assert any(p.endswith(os.path.join("pair_edges", "edges.py")) for p in pair_cache.source_files())
     module = tmp_path / "constants.py"
     module.write_text("DISTINCT_DEG = 10.0\n")
     monkeypatch.setattr(pair_cache, "source_files", lambda: [str(module)])

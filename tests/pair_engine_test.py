@@ -15,7 +15,8 @@ import pytest
 
 import rpmnet_jax
 from conftest import ring_scans, rotation_error_deg
-from rpmnet_jax.multiway import pair_cache, pair_engine, preparation, sizes
+from rpmnet_jax.pair_edges import pair_cache, pair_engine
+from rpmnet_jax.multiway import preparation, sizes
 
 OPTIONS = rpmnet_jax.ScanOptions(num_points=64, num_iters=2, batch_size=2, refine_points=500)  # small: seconds
 NETWORK_OPTIONS = dataclasses.replace(OPTIONS, classical=False)  # every candidate pair through the network
@@ -40,7 +41,7 @@ def test_scheduler_values():
 
 
 def test_in_process_imports_no_dask():
-    code = ("import sys; from rpmnet_jax.multiway import pair_engine, scan_alignment\n"
+    code = ("import sys; from rpmnet_jax.pair_edges import pair_engine; from rpmnet_jax.multiway import scan_alignment\n"
             "with pair_engine.PairEngine(None): pass\n"
             "print(sorted(m for m in ('dask', 'distributed') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import random_pose, rotation_error_deg
-from rpmnet_jax.multiway import pose_graph
+from rpmnet_jax.pose_graphs import pose_graph
 
 
 def _graph(rng, num_nodes=7, noise_deg=0.05, noise_t=1e-4):

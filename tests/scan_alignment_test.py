@@ -11,7 +11,8 @@ from rpmnet_jax.evaluation import pose_errors
 from rpmnet_jax.geometry import cloud
 from rpmnet_jax.io import clouds as cloud_io
 from rpmnet_jax.io import poses as scan_poses
-from rpmnet_jax.multiway import edge_doubt, edge_graph, edges as edges_lib, placement, preparation, sizes
+from rpmnet_jax.multiway import edge_doubt, edge_graph, placement, preparation, sizes
+from rpmnet_jax.pair_edges import edges as edges_lib
 
 BUNNY = DATA / "stanford_bunny"
 

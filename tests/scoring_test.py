@@ -6,7 +6,7 @@ import pytest
 
 import rpmnet_jax
 from conftest import random_pose
-from rpmnet_jax.geometry import scoring
+from rpmnet_jax.classical import scoring
 
 
 def _brute_force(src, ref, t, max_dist):

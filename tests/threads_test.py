@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_info
 
-from rpmnet_jax.geometry import fpfh, threads
+from rpmnet_jax.classical import fpfh
+from rpmnet_jax.geometry import threads
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -71,7 +72,7 @@ def test_blas_is_limited_once_and_again_for_a_library_loaded_later(monkeypatch):
 
 def test_align_runs_with_one_blas_thread(monkeypatch):
     """align's BLAS calls (FPFH's feature matching) see one thread."""
-    from rpmnet_jax.geometry import feature_ransac
+    from rpmnet_jax.classical import feature_ransac
     from rpmnet_jax.pairwise import alignment
 
     seen = []

@@ -129,7 +129,7 @@ def _viewpoints(stored: list, rule: str) -> list:
 
 def _engine(args) -> tuple:
     """``(scheduler, PairCache or None)`` of ``--scheduler`` and ``--cache``, checked before anything runs."""
-    from rpmnet_jax.multiway import pair_cache, pair_engine
+    from rpmnet_jax.pair_edges import pair_cache, pair_engine
 
     try:
         scheduler = pair_engine.check_scheduler(args.scheduler)
@@ -144,7 +144,7 @@ def main(argv=None) -> int:
     that kills its workers)."""
     args = _parser().parse_args(argv)
     from rpmnet_jax import stopwatch
-    from rpmnet_jax.multiway import pair_engine
+    from rpmnet_jax.pair_edges import pair_engine
 
     clock = stopwatch.Stopwatch()
     try:

@@ -185,7 +185,7 @@ def open3d_multiway(clouds, voxel_size: float, seed: int = 0, progress=None, ord
     mapping each scan into the first scan's frame; ``progress(done, total)`` after each pair.
     """
     import open3d as o3d
-    from rpmnet_jax.multiway import pose_graph
+    from rpmnet_jax.pose_graphs import pose_graph
     if order not in ("free", "file"):
         raise ValueError(f"order must be 'free' or 'file', got {order!r}")
     reg = o3d.pipelines.registration

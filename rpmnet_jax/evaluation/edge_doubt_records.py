@@ -11,7 +11,8 @@ import os
 
 import numpy as np
 
-from rpmnet_jax.multiway import edge_doubt, edges as edges_lib, options as options_lib, pair_engine, preparation, sizes
+from rpmnet_jax.multiway import edge_doubt, options as options_lib, preparation, scan_alignment, sizes
+from rpmnet_jax.pair_edges import edges as edges_lib, pair_engine
 from rpmnet_jax.ops import se3
 
 

@@ -19,7 +19,7 @@ from rpmnet_jax import config as config_lib
 from rpmnet_jax import metrics, registration
 from rpmnet_jax.evaluation import baselines
 from rpmnet_jax.ops import se3
-from rpmnet_jax.geometry import icp
+from rpmnet_jax.classical import icp
 from rpmnet_jax.pairwise import alignment, candidates, options, prepare, starts
 
 STARTS = ("perturbed", "rpmnet")

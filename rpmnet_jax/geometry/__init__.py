@@ -1,3 +1,3 @@
-"""Host-side geometry of point clouds (NumPy/SciPy, the RANSAC verification in JAX): cleaning and sampling
-(``cloud``, ``sampling``), normals, FPFH features and RANSAC hypotheses (``fpfh``, ``feature_ransac``), robust
-point-to-plane ICP (``icp``) and scoring a transform (``scoring``). Knows nothing of the network."""
+"""Host-side geometry of point clouds (NumPy/SciPy/Numba): cleaning and sampling (``cloud``, ``sampling``), the
+k-d tree (``kdtree``), normals, sensors and free space (``sensors``, ``visibility``), a common shift
+(``offsets``) and the compiled loops' threads (``threads``). Knows nothing of the network."""

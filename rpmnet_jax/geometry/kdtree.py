@@ -1,7 +1,7 @@
 """The one k-d tree of the library, compiled with Numba, with SciPy's conventions.
 
 Numba, so that compiled loops query it (:func:`query_into`, :func:`nearest`; the ICP's iteration is one compiled
-loop around its queries, :mod:`rpmnet_jax.geometry.icp`) and a query from Python is one compiled call. Median splits along the
+loop around its queries, :mod:`rpmnet_jax.classical.icp`) and a query from Python is one compiled call. Median splits along the
 widest axis down to leaves of ``LEAF`` points, stored in tree order; a query visits the nearer child first and
 skips a node whose splitting plane lies beyond its current ``k``-th distance. A missing neighbour (none within
 ``distance_upper_bound``) has distance ``inf`` and index ``n``, as in SciPy.

@@ -1,3 +1,4 @@
-"""Many scans into one frame: :func:`rpmnet_jax.align_scans` (``scan_alignment``) over pairwise edges
-(``edges``) and a robust pose graph (``pose_graph``); its options (``options``); the pairs run as tasks, in
-process or on Dask (``pair_engine``), and kept on disk (``pair_cache``)."""
+"""Many scans into one frame: :func:`rpmnet_jax.align_scans` (``scan_alignment``, its stages ``preparation``,
+``edge_graph``, ``placement``, ``refinement``), which pairs to register (``candidate_pairs``), the edge doubt model
+(``edge_doubt``), sizes and sensors (``sizes``) and its options (``options``). The pair edges and the engine that
+runs them are :mod:`rpmnet_jax.pair_edges`; the pose graph and the joint refinement :mod:`rpmnet_jax.pose_graphs`."""

@@ -3,7 +3,7 @@
 O(S·k) registrations instead of O(S²).
 
 The estimate is a bag of words of local shape, as image retrieval's (Sivic & Zisserman 2003): the SPFH
-(:mod:`rpmnet_jax.geometry.fpfh`, Darboux-frame angles, rotation invariant) of ``keypoints`` seeded points per
+(:mod:`rpmnet_jax.classical.fpfh`, Darboux-frame angles, rotation invariant) of ``keypoints`` seeded points per
 scan over every ``stride``-th point within ``radius``; a vocabulary of ``words`` centres by k-means over a
 sample of them from all scans; per scan the share of its keypoints nearest each word; for a pair the
 intersection of their histograms (``Σ_w min(h_i, h_j)``, in ``[0, 1]``). Scans seen from near viewpoints see
@@ -35,8 +35,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from rpmnet_jax.geometry import cloud, fpfh, kdtree, sampling
-from rpmnet_jax.multiway import pose_graph
+from rpmnet_jax.geometry import cloud, kdtree, sampling
+from rpmnet_jax.classical import fpfh
+from rpmnet_jax.pose_graphs import pose_graph
 
 WORDS = 128  # vocabulary size
 KEYPOINTS = 1000  # descriptors per scan
@@ -100,7 +101,7 @@ def intersections(histograms: np.ndarray, chunk: int = 64) -> np.ndarray:
 def overlap_scores(scans, *, words: int = WORDS, keypoints: int = KEYPOINTS, radius: float | None = None,
                    max_nn: int = MAX_NN, stride: int = STRIDE, seed: int = 0) -> np.ndarray:
     """``(S, S)`` symmetric scores in ``[0, 1]`` (1 on the diagonal), higher where two of ``scans`` (a list of
-    :class:`~rpmnet_jax.multiway.edges.Scan`) are more likely to overlap: the intersection of their bags of SPFH
+    :class:`~rpmnet_jax.pair_edges.edges.Scan`) are more likely to overlap: the intersection of their bags of SPFH
     words (module docstring). Rotation invariant per scan; the vocabulary is fitted on these scans, so a score
     depends on the whole set. ``radius``: caller's units, default ``RELATIVE_RADIUS`` × the median robust scan
     radius. Deterministic for a ``seed``."""
@@ -114,7 +115,7 @@ def overlap_scores(scans, *, words: int = WORDS, keypoints: int = KEYPOINTS, rad
 
 
 def _spanning_tree(scores: np.ndarray) -> list:
-    """Maximum spanning tree of ``scores (S, S)`` (:func:`rpmnet_jax.multiway.pose_graph.spanning_forest`):
+    """Maximum spanning tree of ``scores (S, S)`` (:func:`rpmnet_jax.pose_graphs.pose_graph.spanning_forest`):
     ``[(i, j)]``, ``i < j``; ties go to the lower pair."""
     i, j = np.triu_indices(len(scores), 1)
     tree = pose_graph.spanning_forest(len(scores), np.stack([i, j], axis=1), scores[i, j])

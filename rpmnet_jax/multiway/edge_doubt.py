@@ -19,7 +19,8 @@ import os
 
 import numpy as np
 
-from rpmnet_jax.multiway import options as options_lib, pose_graph, sizes
+from rpmnet_jax.multiway import options as options_lib, sizes
+from rpmnet_jax.pose_graphs import pose_graph
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import doubt
 
@@ -49,7 +50,7 @@ def lever(information) -> tuple:
 
 
 def features(edge, max_distance: float, answers=()) -> np.ndarray:
-    """The :data:`FEATURES` ``(F,)`` of ``edge`` (an :class:`~rpmnet_jax.multiway.edges.Edge`, or anything with
+    """The :data:`FEATURES` ``(F,)`` of ``edge`` (an :class:`~rpmnet_jax.pair_edges.edges.Edge`, or anything with
     its ``transform``, ``fitness``, ``inlier_rmse``, ``information``, ``plane_residual``) measured within
     ``max_distance``; ``answers``: all distinct answers of its pair (``edges.classical_edges``, before the good
     rule; the edge among them or not), which give its rank by fitness, the best other answer's fitness, the

@@ -1,7 +1,7 @@
 """Steps 2–3 of :func:`rpmnet_jax.align_scans` on the pair edges as a graph: each classical answer rated by the
 edge doubt model and screened, the robust pose graph of the edges, and the scans whose poses rest on doubt.
 
-An edge's ``p_wrong`` (:class:`~rpmnet_jax.multiway.edges.Edge`) is set here; edges not rated carry 0 (sure).
+An edge's ``p_wrong`` (:class:`~rpmnet_jax.pair_edges.edges.Edge`) is set here; edges not rated carry 0 (sure).
 """
 
 from __future__ import annotations
@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from rpmnet_jax.geometry import visibility
-from rpmnet_jax.multiway import edge_doubt, pose_graph
+from rpmnet_jax.multiway import edge_doubt
+from rpmnet_jax.pose_graphs import pose_graph
 
 FREE_SPACE_MARGIN = 2.0  # the free-space check's margin, × the correspondence distance (noise, the bins' spread)
 

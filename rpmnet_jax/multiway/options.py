@@ -31,7 +31,7 @@ class ScanOptions:
     Refinement: ``refine="joint"`` (default) moves all poses together on the points of every pair predicted to
     overlap by ``min_overlap``, of those each scan's ``refine_neighbours`` most overlapping ones (1,000 points per
     scan of a pair; multi-view point-to-plane,
-    :mod:`rpmnet_jax.multiway.joint_refine`); ``refine="icp"``: ``refine_rounds`` rounds of pairwise ICP edges
+    :mod:`rpmnet_jax.pose_graphs.joint_refine`); ``refine="icp"``: ``refine_rounds`` rounds of pairwise ICP edges
     on up to ``refine_points`` points for those pairs, each round a robust pose graph. Edge noise floor:
     ``edge_sigma_deg`` (rotation) and ``edge_sigma_fraction`` × the correspondence distance (translation), per
     axis. Deterministic for a ``seed``.

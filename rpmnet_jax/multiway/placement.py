@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from rpmnet_jax.geometry import normals as normals_lib, sampling, scoring
-from rpmnet_jax.multiway import edges as edges_lib
+from rpmnet_jax.geometry import normals as normals_lib, sampling
+from rpmnet_jax.classical import scoring
+from rpmnet_jax.pair_edges import edges as edges_lib
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment
 

@@ -3,7 +3,7 @@
 Each scan cleaned, moved by the set's common shift (float64: the shift loses nothing), voxel-downsampled at the
 set's voxel (:mod:`rpmnet_jax.multiway.sizes`), with normals (the caller's averaged per voxel, else estimated and
 facing the scan's sensor where one is known, else away from its centroid) and the FPFH of its keypoints
-(:func:`rpmnet_jax.multiway.edges.make_scan`).
+(:func:`rpmnet_jax.pair_edges.edges.make_scan`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling
-from rpmnet_jax.multiway import candidate_pairs, edges as edges_lib, sizes
+from rpmnet_jax.multiway import candidate_pairs, sizes
+from rpmnet_jax.pair_edges import edges as edges_lib
 
 MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
 

@@ -1,5 +1,5 @@
 """Step 5 of :func:`rpmnet_jax.align_scans`: the placed scans refined on the pairs predicted to overlap, jointly
-(:mod:`rpmnet_jax.multiway.joint_refine`) or by rounds of pairwise ICP edges."""
+(:mod:`rpmnet_jax.pose_graphs.joint_refine`) or by rounds of pairwise ICP edges."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import itertools
 
 import numpy as np
 
-from rpmnet_jax.multiway import edges as edges_lib, joint_refine
+from rpmnet_jax.pair_edges import edges as edges_lib
+from rpmnet_jax.pose_graphs import joint_refine
 from rpmnet_jax.ops import se3
 
 

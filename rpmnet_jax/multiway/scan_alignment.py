@@ -23,7 +23,7 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    its ``p_wrong`` from the edge doubt model (:mod:`rpmnet_jax.multiway.edge_doubt`; with
    ``edge_doubt="reject"``, those at ``p_wrong`` ≥ its ``reject_threshold`` stay out). On the 10 bunny scans the
    classical edges connect every scan and the network does not run;
-3. robust pose graph (:mod:`rpmnet_jax.multiway.pose_graph`: a consensus spanning tree whose edges are ranked by
+3. robust pose graph (:mod:`rpmnet_jax.pose_graphs.pose_graph`: a consensus spanning tree whose edges are ranked by
    fitness × (1 − ``p_wrong``) (``edge_doubt="weigh"``, the default; a symmetric shape's flip often overlaps
    more than the right answer, and its ``p_wrong`` is what tells them apart), GTSAM's
    Levenberg–Marquardt with a Cauchy kernel, edges beyond the χ² bound rejected) over those edges; wrong
@@ -37,7 +37,7 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    robust graph, not the flag, decides which edges stay);
 5. refine (:mod:`rpmnet_jax.multiway.refinement`): every placed pair predicted to overlap by ``min_overlap`` at the current poses takes part:
    ``refine="joint"`` (default) moves all poses together on their points (multi-view point-to-plane,
-   :mod:`rpmnet_jax.multiway.joint_refine`), then measures each pair as an edge; ``refine="icp"`` gives each
+   :mod:`rpmnet_jax.pose_graphs.joint_refine`), then measures each pair as an edge; ``refine="icp"`` gives each
    an ICP edge from the current poses on up to ``refine_points`` points, and the robust pose graph of those
    edges gives the poses (``refine_rounds`` times).
 
@@ -57,7 +57,9 @@ import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
 from rpmnet_jax.geometry import offsets, threads
-from rpmnet_jax.multiway import edge_graph, options as options_lib, pair_engine, placement, pose_graph, preparation
+from rpmnet_jax.multiway import edge_graph, options as options_lib, placement, preparation
+from rpmnet_jax.pair_edges import pair_engine
+from rpmnet_jax.pose_graphs import pose_graph
 from rpmnet_jax.multiway import refinement, sizes
 from rpmnet_jax.weights import loading
 
@@ -94,10 +96,10 @@ def align_scans(clouds, normals=None, *, viewpoints="auto",
     scan in its own coordinates; estimated normals face it, and scans seen from inside get a scene's voxel.
     ``checkpoint``: as :func:`rpmnet_jax.align`'s (default the shipped model, or pass ``params``).
     ``progress``: called as ``progress(stage, done, total)`` as the long stages advance (a CLI draws bars).
-    ``scheduler``: where the pair registrations run (:mod:`rpmnet_jax.multiway.pair_engine`): ``None`` this
+    ``scheduler``: where the pair registrations run (:mod:`rpmnet_jax.pair_edges.pair_engine`): ``None`` this
     process, ``"local"`` or a worker count an embedded Dask ``LocalCluster``, ``"tcp://HOST:8786"`` a running
     Dask scheduler (or a ``distributed.Client``); the same poses on each. ``cache``: a folder (or
-    :class:`~rpmnet_jax.multiway.pair_cache.PairCache`) keeping every finished pair result; a run again with
+    :class:`~rpmnet_jax.pair_edges.pair_cache.PairCache`) keeping every finished pair result; a run again with
     the same scans, options and cache reuses them."""
     if not isinstance(options, options_lib.ScanOptions):
         raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")

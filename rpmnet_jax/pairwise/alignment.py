@@ -8,14 +8,14 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    rotation hypotheses of :mod:`rpmnet_jax.pairwise.global_search` in one batched call, polishes each answer
    with a short ICP and keeps the ``top_k`` best (:class:`~rpmnet_jax.pairwise.options.GlobalOptions`);
    ``init="auto"`` (default) refines up to ``GlobalOptions.classical`` FPFH + RANSAC hypotheses
-   (:mod:`rpmnet_jax.geometry.feature_ransac`: rotation invariant, cheap) first, adds the local start when the
+   (:mod:`rpmnet_jax.classical.feature_ransac`: rotation invariant, cheap) first, adds the local start when the
    best refined answer is ambiguous, or when its fitness is below ``GlobalOptions.network_fitness`` and the
    answer it would give is not trusted (its fitness below 0.45, or at least ``GlobalOptions.network_doubt``
    likely wrong by step 6), and the global
    search when still no answer reaches ``GlobalOptions.auto_fitness`` and the best one is not confirmed (reached
    from a classical and from the network's start, nothing close to it: two independent starts agree); ``init="classical"`` refines the classical
    hypotheses alone (no network; the identity when they find none);
-3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.geometry.icp`) from
+3. refine: ``refine="icp"`` (default) runs robust point-to-plane ICP (:mod:`rpmnet_jax.classical.icp`) from
    each start on denser samples of the caller's clouds (``RefineOptions.points`` random source points and
    up to ``prepare.REFERENCE_FACTOR`` × as many of the reference); the
    :class:`~rpmnet_jax.pairwise.candidates.Candidate` with the best
@@ -24,7 +24,7 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    ``refine="none"`` returns the winning start as it is (with ``init="local"``: the network's answer, the
    paper's method);
 4. score: fitness, inlier RMSE and correspondences of the answer on the full clouds, as Open3D's
-   ``evaluate_registration`` (:mod:`rpmnet_jax.geometry.scoring`), and the point-to-plane ``information``
+   ``evaluate_registration`` (:mod:`rpmnet_jax.classical.scoring`), and the point-to-plane ``information``
    (6×6) of its fit (:meth:`Alignment.covariance` inverts it);
 5. say what is uncertain: ``candidates`` lists the distinct refined answers (rotations more than
    ``AMBIGUITY_DEG`` apart), best first, with their scores; ``ambiguous`` is set when the second reaches
@@ -59,7 +59,8 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
-from rpmnet_jax.geometry import sampling as sampling_lib, scoring, sensors, threads, visibility
+from rpmnet_jax.geometry import sampling as sampling_lib, sensors, threads, visibility
+from rpmnet_jax.classical import scoring
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import candidates as candidates_lib, global_search, options as options_lib, prepare
 from rpmnet_jax.pairwise import auto, doubt, starts as starts_lib

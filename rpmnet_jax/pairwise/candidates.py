@@ -8,7 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax.geometry import icp, scoring
+from rpmnet_jax.classical import icp, scoring
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import options as options_lib, prepare
 
@@ -171,6 +171,6 @@ def select(candidates: list, dense: prepare.DenseClouds | None, max_dist_unit: f
 
 
 def _icp(dense: prepare.DenseClouds, start: np.ndarray, max_dist_unit: float, **icp_kwargs) -> icp.Refinement:
-    """:func:`rpmnet_jax.geometry.icp.point_to_plane_icp` from ``start (4, 4)`` on the dense samples."""
+    """:func:`rpmnet_jax.classical.icp.point_to_plane_icp` from ``start (4, 4)`` on the dense samples."""
     return icp.point_to_plane_icp(dense.src, dense.ref, dense.ref_normals, start, max_dist_unit,
                                   src_normals=dense.src_normals, ref_tree=dense.ref_tree, **icp_kwargs)

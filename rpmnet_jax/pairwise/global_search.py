@@ -15,7 +15,8 @@ import functools
 
 import numpy as np
 
-from rpmnet_jax.geometry import icp, sampling
+from rpmnet_jax.classical import icp
+from rpmnet_jax.geometry import sampling
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import candidates, options as options_lib, prepare, starts
 

@@ -21,7 +21,7 @@ class RefineOptions:
     ``points``: source points sampled from the caller's cloud (the reference: up to ``20 × points``). ``scales``
     (gates as multiples of the correspondence distance, coarse to fine), ``max_iterations`` (per stage) and
     ``tolerance`` (update size that ends a stage): ``None`` keeps
-    :func:`rpmnet_jax.geometry.icp.point_to_plane_icp`'s default.
+    :func:`rpmnet_jax.classical.icp.point_to_plane_icp`'s default.
     """
 
     points: int = 5000
@@ -40,7 +40,7 @@ class RefineOptions:
         checks.require_positive("RefineOptions.tolerance", self.tolerance, optional=True)
 
     def icp_kwargs(self) -> dict:
-        """The keywords for :func:`rpmnet_jax.geometry.icp.point_to_plane_icp` that are set."""
+        """The keywords for :func:`rpmnet_jax.classical.icp.point_to_plane_icp` that are set."""
         fields = ("scales", "max_iterations", "tolerance")
         return {f: getattr(self, f) for f in fields if getattr(self, f) is not None}
 
@@ -52,7 +52,7 @@ NETWORK_DOUBT = 0.15  # GlobalOptions.network_doubt; chosen on tuning data, meas
 class GlobalOptions:
     """The orientation-free starts of ``init="auto"`` and ``"global"``.
 
-    ``classical``: how many distinct FPFH + RANSAC hypotheses (:mod:`rpmnet_jax.geometry.feature_ransac`,
+    ``classical``: how many distinct FPFH + RANSAC hypotheses (:mod:`rpmnet_jax.classical.feature_ransac`,
     rotation-invariant, at least 45° apart) join the candidates of ``auto`` and ``global`` (0: none).
     ``auto`` refines them first and runs the network from the identity only when the best one is ambiguous (a
     flip scores close to it), or when its fitness is below ``network_fitness`` (always at 1) and either below

@@ -17,7 +17,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax.geometry import cloud, icp as icp_lib, kdtree, normals as normals_lib, sampling as sampling_lib
+from rpmnet_jax.geometry import cloud, kdtree, normals as normals_lib, sampling as sampling_lib
+from rpmnet_jax.classical import icp as icp_lib
 from rpmnet_jax.ops import se3
 
 

@@ -8,7 +8,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax.geometry import feature_ransac, normals as normals_lib, sampling
+from rpmnet_jax.classical import feature_ransac
+from rpmnet_jax.geometry import normals as normals_lib, sampling
 from rpmnet_jax.pairwise import prepare
 
 

@@ -2,7 +2,7 @@
 calls, ICP from a start, and the measured quality of each answer.
 
 An edge ``(i, j)`` maps the source scan ``i`` onto the target scan ``j`` (caller's units); its information
-matrix is on the tangent of the right perturbation (:func:`rpmnet_jax.geometry.scoring.plane_fit`).
+matrix is on the tangent of the right perturbation (:func:`rpmnet_jax.classical.scoring.plane_fit`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax.ops import se3
-from rpmnet_jax.geometry import feature_ransac, fpfh, icp, kdtree, sampling, scoring
+from rpmnet_jax.classical import feature_ransac, fpfh, icp, scoring
+from rpmnet_jax.geometry import kdtree, sampling
 from rpmnet_jax.pairwise import prepare
 
 FEATURE_POINTS = 4000  # FPFH keypoints per scan at most: one per cube of KEYPOINT_VOXELS voxels, a seeded random

@@ -1,6 +1,6 @@
 """The pair registrations of :func:`rpmnet_jax.align_scans` as tasks: in this process, or on a Dask cluster (an
 embedded ``LocalCluster`` of worker processes, or a running scheduler), each result kept in a
-:class:`~rpmnet_jax.multiway.pair_cache.PairCache` when one is given.
+:class:`~rpmnet_jax.pair_edges.pair_cache.PairCache` when one is given.
 
 Tasks are pure functions of the scans, the pairs, the settings and the seed: a pair's random sample comes
 from its own generator, seeded by ``(seed, stage, i, j)``, so its edge does not depend on which worker ran it,
@@ -18,8 +18,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax.geometry import icp, threads
-from rpmnet_jax.multiway import edges as edges_lib, pair_cache
+from rpmnet_jax.classical import icp
+from rpmnet_jax.geometry import threads
+from rpmnet_jax.pair_edges import edges as edges_lib, pair_cache
 
 CONNECT_TIMEOUT = "20s"  # waiting for a scheduler that does not answer
 NETWORK_TAG, CLASSICAL_TAG = 0, 1  # a pair's generator: (seed, tag, i, j); refinement round r: (seed, 2 + r, i, j)
@@ -69,7 +70,7 @@ def network_chunk(scans, chunk, todo, params, cfg, settings: Settings, compile_c
 @threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the compiled loops
 def classical_pair(scans, i, j, settings: Settings) -> list:
     """``[((i, j), edges)]``: the answers of scan ``i`` onto scan ``j`` from FPFH + RANSAC
-    (:func:`~rpmnet_jax.multiway.edges.classical_edges`)."""
+    (:func:`~rpmnet_jax.pair_edges.edges.classical_edges`)."""
     s = settings
     return [((i, j), edges_lib.classical_edges(scans, i, j, s.max_distance, s.ransac_distance,
                                                pair_rng(s.seed, CLASSICAL_TAG, i, j), num_points=s.network_icp_points,
@@ -127,7 +128,7 @@ class PairTaskError(RuntimeError):
 
 class PairEngine:
     """Runs pair tasks on ``scheduler`` (see :func:`check_scheduler`), keeping results in ``cache`` (a folder or
-    a :class:`~rpmnet_jax.multiway.pair_cache.PairCache`; ``None``: none). A context manager: leaving it
+    a :class:`~rpmnet_jax.pair_edges.pair_cache.PairCache`; ``None``: none). A context manager: leaving it
     closes the cluster it started or the connection it made."""
 
     def __init__(self, scheduler=None, cache=None):
@@ -164,7 +165,7 @@ class PairEngine:
         self.client = self._cluster = self._scan_futures = self._params_future = None
 
     def bind(self, scans, params, cfg, settings: Settings) -> None:
-        """The scans (:class:`~rpmnet_jax.multiway.edges.Scan`), network (``params``; ``None``: the shipped
+        """The scans (:class:`~rpmnet_jax.pair_edges.edges.Scan`), network (``params``; ``None``: the shipped
         model, loaded when the network first runs) and settings of the coming tasks; the scans are sent to every
         worker here, once (the network's parameters when it first runs)."""
         self.scans, self.params, self.cfg, self.settings = scans, params, cfg, settings

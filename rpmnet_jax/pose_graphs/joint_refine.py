@@ -14,7 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax.geometry import icp, sampling
+from rpmnet_jax.classical import icp
+from rpmnet_jax.geometry import sampling
 from rpmnet_jax.ops import se3
 
 GATES = (1.0, 0.5, 0.25)  # the stages' correspondence gates, × max_distance (Tukey's scale at each); measured on
@@ -85,7 +86,7 @@ def _step(twist, centre):
 def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num_points: int = POINTS,
                    gates=GATES, max_iterations: int = MAX_ITERATIONS, tolerance: float = 1e-4, seed: int = 0,
                    tick=None) -> Refinement:
-    """Refines ``poses (S, 4, 4)`` of :class:`~rpmnet_jax.multiway.edges.Scan` s over the overlapping ``pairs
+    """Refines ``poses (S, 4, 4)`` of :class:`~rpmnet_jax.pair_edges.edges.Scan` s over the overlapping ``pairs
     [(i, j), ...]``: up to ``num_points`` points of each scan of a pair against the other's tangent planes,
     both directions; ``gates`` × ``max_distance`` in turn (never below ``GATE_SIGMAS`` robust standard
     deviations of the residuals), up to ``max_iterations`` steps each, a stage ending when no pose moves by

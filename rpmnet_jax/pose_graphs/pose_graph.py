@@ -3,7 +3,7 @@
 A node's pose ``P_i (4, 4)`` maps scan ``i``'s points into the anchor scan's frame. An edge ``(i, j)`` with
 ``transform T (4, 4)`` maps the source scan ``i`` onto the target scan ``j``: ``T ≈ P_j⁻¹ P_i``, with an
 information matrix ``(6, 6)`` on the tangent ``ξ = (ω, v)`` of ``T · Exp(ξ)`` (GTSAM's ``Pose3`` order, as
-:func:`rpmnet_jax.geometry.scoring.plane_fit` gives it).
+:func:`rpmnet_jax.classical.scoring.plane_fit` gives it).
 
 The optimisation is GTSAM's (``BetweenFactorPose3`` edges, the anchor held by a tight prior, Levenberg–
 Marquardt): well-kept, exact SE(3) Jacobians and sparse solvers we do not have to write or test. Robustness

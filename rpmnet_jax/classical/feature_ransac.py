@@ -18,7 +18,8 @@ import numba
 import numpy as np
 
 from rpmnet_jax.ops import se3
-from rpmnet_jax.geometry import fpfh, threads
+from rpmnet_jax.classical import fpfh
+from rpmnet_jax.geometry import threads
 
 
 class Hypotheses(NamedTuple):

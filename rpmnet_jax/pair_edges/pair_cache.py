@@ -17,15 +17,14 @@ import zipfile
 
 import numpy as np
 
-from rpmnet_jax.multiway import edges as edges_lib
+from rpmnet_jax.pair_edges import edges as edges_lib
 
 CACHE_VERSION = 3  # part of every key: a new layout or meaning of the files starts a new set of keys
 # The package's code an edge's value depends on (folders and files under rpmnet_jax/): its source is part of every
 # key, so an upgrade that changes a constant or a line there (RANSAC's draws, the ICP's gates, DISTINCT_DEG, the
 # features, the network) starts a new set of keys, and a resumed run never mixes old edges with new ones. More than
 # strictly needed (an edit to a docstring there invalidates too): a cache is cheap to refill, a wrong edge is not.
-RESULT_CODE = ("config.py", "registration.py", "geometry", "ops", "nn", "pairwise", "multiway/edges.py",
-               "multiway/pair_engine.py", "multiway/pair_cache.py")
+RESULT_CODE = ("config.py", "registration.py", "geometry", "classical", "ops", "nn", "pairwise", "pair_edges")
 _PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 _code = {}  # the digest, once per process
 
@@ -68,7 +67,7 @@ def code_digest() -> str:
 
 
 def scan_digest(scan: edges_lib.Scan) -> str:
-    """Content digest of a :class:`~rpmnet_jax.multiway.edges.Scan`: its points and normals ``(V, 3)``."""
+    """Content digest of a :class:`~rpmnet_jax.pair_edges.edges.Scan`: its points and normals ``(V, 3)``."""
     return digest(scan.points, scan.normals)
 
 
