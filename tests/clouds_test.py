@@ -85,11 +85,13 @@ def test_candidates_file_holds_every_answer_exactly(tmp_path):
 
     t = np.eye(4)
     t[:3, 3] = [1 / 3, 2e6, -7.25]
-    answers = [Answer(t, 0.9, 0.95, 0.01, "classical"), Answer(np.eye(4), 0.5, 0.6, 0.02, "local")]
+    answers = [Answer(t, 0.9, 0.95, 0.01, "classical", ("classical", "local")),
+               Answer(np.eye(4), 0.5, 0.6, 0.02, "local")]
     info = np.diag(np.arange(1.0, 7.0)) / 3
     cloud_io.write_candidates(str(tmp_path / "c.json"), answers, info, seed=3)
     got = json.loads((tmp_path / "c.json").read_text())
-    assert [c["start"] for c in got["candidates"]] == ["classical", "local"] and got["seed"] == 3
+    assert [c["init"] for c in got["candidates"]] == ["classical", "local"] and got["seed"] == 3
+    assert [c["support"] for c in got["candidates"]] == [["classical", "local"], []]
     np.testing.assert_array_equal(got["candidates"][0]["transform"], t)
     np.testing.assert_array_equal(got["information"], info)
     assert got["candidates"][1]["score"] == 0.5 and got["candidates"][1]["inlier_rmse"] == 0.02

@@ -171,9 +171,10 @@ def write_transform(path: str, transform: np.ndarray, **extra) -> None:
 
 def write_candidates(path: str, candidates, information: np.ndarray, **extra) -> None:
     """The distinct answers of an alignment (:class:`rpmnet_jax.pairwise.alignment.Answer`, best first) and the
-    information matrix of the best, as ``.json`` (float64 exact)."""
+    information matrix of the best, as ``.json`` (float64 exact): each answer's fields by their ``Answer`` names."""
     rows = [{"transform": np.asarray(c.transform, np.float64).tolist(), "score": c.score, "fitness": c.fitness,
-             "inlier_rmse": c.inlier_rmse, "start": c.init} for c in candidates]
+             "inlier_rmse": c.inlier_rmse, "init": c.init, "support": list(getattr(c, "support", ()))}
+            for c in candidates]
     with open(path, "w") as f:
         json.dump({"candidates": rows, "information": np.asarray(information, np.float64).tolist(), **extra},
                   f, indent=2)

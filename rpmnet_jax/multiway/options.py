@@ -41,9 +41,6 @@ class ScanOptions:
     # weigh: chosen on the 'held-out' rings of a box, checked on the bunny and other scan sets (tuning data: numbers
     # on that data are not held-out)
     edge_doubt: str = "weigh"
-    num_points: int = 256
-    num_iters: int = 3
-    batch_size: int = 16
     all_pairs_up_to: int = 12
     # 6 and refine_neighbours 8: chosen on 60 and 240 simulated range scans, the 60-scan bunny and horse campaign sets
     # and the 10 bunny scans (tuning data: numbers on that data are not held-out)
@@ -53,6 +50,9 @@ class ScanOptions:
     min_fitness: float = 0.3  # accepting an edge
     min_overlap: float = 0.2
     max_plane_residual: float | None = None  # None: 0.1 for objects, 0.06 for scenes (multiway.sizes)
+    num_points: int = 256  # the network's pair edges
+    num_iters: int = 3
+    batch_size: int = 16
     refine: str = "joint"  # refinement; chosen on 12 simulated and the 10 real bunny scans (tuning data: not held-out)
     refine_rounds: int = 2
     refine_neighbours: int = 8
