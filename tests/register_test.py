@@ -63,8 +63,12 @@ def test_html_page_holds_the_finite_rows_and_the_numbers(tmp_path, capsys, rando
     data = json.loads(re.search(r'id="rpmnet-data">(.*?)</script>', text, re.S).group(1))
     assert [(c["name"], c["drawn"]) for c in data["clouds"]] == [("source", 395), ("reference", 400),
                                                                   ("aligned source", 395)]
-    fitness = float(re.search(r"<th>fitness</th><td>([^<]+)</td>", text).group(1))
-    assert f"fitness {fitness:.3f}" in out and "src.npy" in text and "ref.npy" in text
+    assert "src.npy" in text and "ref.npy" in text
+    for name in ("fitness", "confidence", "p_wrong"):  # the same text on the page and on the terminal
+        shown = re.search(rf"<th>{name}</th><td>([^<]+)</td>", text).group(1)
+        assert f"{name} {shown}  " in out, (name, shown, out)
+    warned = any(f"warning: {w}" in err for w in ("low fitness", "ambiguous", "likely wrong"))
+    assert ("id='alerts'" in text) == warned, err  # the banner says what the terminal warns of
 
 
 def _write(tmp_path, name, pts, nrm=None):

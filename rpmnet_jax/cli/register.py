@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     from rpmnet_jax.io import clouds as cloud_io
     from rpmnet_jax.ops import se3
     from rpmnet_jax.pairwise import alignment as align_lib
-    from rpmnet_jax.report import pages
+    from rpmnet_jax.report import alerts, formats, pages
     from rpmnet_jax.weights import loading
 
     try:
@@ -95,28 +95,27 @@ def main(argv=None) -> int:
         return 2
     for w in caught:
         print(f"rpmnet-register: warning: {w.message}", file=sys.stderr)
-    import numpy as np
-    with np.printoptions(precision=6, suppress=True):
-        print(result.transform)
-    print(f"fitness {result.fitness:.3f}  inlier_rmse {result.inlier_rmse:.6g}  "
-          f"max_correspondence_distance {result.max_correspondence_distance:.6g}  start {result.init}  "
+    n = formats.number  # as the --html page writes them
+    print(formats.matrix(result.transform))
+    print(f"fitness {n(result.fitness)}  inlier_rmse {n(result.inlier_rmse)}  "
+          f"max_correspondence_distance {n(result.max_correspondence_distance)}  start {result.init}  "
           f"icp_iterations {result.num_iterations}{'' if result.converged else ' (not converged)'}")
-    stages = "  ".join(f"{k} {v:.2f}" for k, v in result.timings.items() if k != "total")
-    print(f"confidence {result.confidence:.3f}  p_wrong {result.p_wrong:.3f}  points {result.num_points[0]}/"
-          f"{result.num_points[1]}  time {seconds:.2f} s ({stages})")
+    stages = "  ".join(f"{k} {n(v)}" for k, v in result.timings.items() if k != "total")
+    print(f"confidence {n(result.confidence)}  p_wrong {n(result.p_wrong)}  points {result.num_points[0]}/"
+          f"{result.num_points[1]}  time {n(seconds)} s ({stages})")
     if result.fitness < args.low_fitness:
-        print(f"rpmnet-register: warning: low fitness {result.fitness:.3f}: only this share of the source has a "
+        print(f"rpmnet-register: warning: low fitness {n(result.fitness)}: only this share of the source has a "
               "reference point within the correspondence distance; the answer is likely wrong (try --init global, "
               "or a larger --max-correspondence-distance if the clouds are sparse or noisy)", file=sys.stderr)
     if result.ambiguous:
         second = result.candidates[1]
         angle = float(se3.rotation_angle_deg(second.transform[:3, :3] @ result.transform[:3, :3].T))
         print(f"rpmnet-register: warning: ambiguous: another answer {angle:.0f} deg away scores "
-              f"{second.score / result.candidates[0].score:.2f} of the best ({len(result.candidates)} distinct "
+              f"{n(second.score / result.candidates[0].score)} of the best ({len(result.candidates)} distinct "
               "answers); the shape may fit itself in several poses (symmetric), so the answer may be any of them"
               f"{'' if args.out_candidates else ' (--out-candidates writes them)'}", file=sys.stderr)
     if result.likely_wrong:
-        print(f"rpmnet-register: warning: likely wrong: p_wrong {result.p_wrong:.2f} (the calibrated probability "
+        print(f"rpmnet-register: warning: likely wrong: p_wrong {n(result.p_wrong)} (the calibrated probability "
               "that the rotation is more than 5 deg off); check the answer (--html shows it), or try --init global",
               file=sys.stderr)
     if args.out_candidates:
@@ -134,7 +133,9 @@ def main(argv=None) -> int:
     if args.plot:
         plots.plot_alignment(args.plot, src, ref, result.aligned)
     if args.html:
-        pages.pair_report(args.html, src, ref, result.aligned, _report_numbers(args, result, seconds))
+        pages.pair_report(args.html, src, ref, result.aligned, _report_numbers(args, result, seconds),
+                          alerts=alerts.pair(result.fitness, args.low_fitness, result.p_wrong, result.likely_wrong,
+                                             result.ambiguous))
     return 0
 
 
@@ -155,7 +156,7 @@ def _report_numbers(args, result, seconds: float) -> dict:
             "start": result.init, "ICP iterations": f"{result.num_iterations}"
                                                     f"{'' if result.converged else ' (not converged)'}",
             "confidence": result.confidence, "points used": f"{result.num_points[0]} / {result.num_points[1]}",
-            "time (s)": round(seconds, 2), "ambiguous": result.ambiguous, "p_wrong": round(result.p_wrong, 3),
+            "time (s)": seconds, "ambiguous": result.ambiguous, "p_wrong": result.p_wrong,
             "likely wrong": result.likely_wrong, "candidates": candidates}
 
 

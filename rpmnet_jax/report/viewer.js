@@ -1,8 +1,10 @@
 // The point-cloud viewer of rpmnet_jax's HTML reports: WebGL 1, no library, no network.
 // Data (the JSON script "rpmnet-data"): clouds [{name, colour "#rrggbb", rows, drawn, points}] where points is
 // base64 of little-endian uint16 (x, y, z) per point, quantised over the box of all clouds (extent [3], centred
-// on the origin here); views [{title, clouds: [index], centre}] drawn one at a time or side by side, each moved
-// so that the centre of its own clouds' box (centre [3], from the box's centre) is at the origin.
+// on the origin here); views [{title, clouds: [index], centre, radius}] drawn one at a time or side by side
+// (in this order, left to right), each moved so that the centre of its own clouds' box (centre [3], from the
+// box's centre) is at the origin, and each framed on the sphere about it that holds its clouds (radius); first:
+// the view shown when the page opens; up: "y" or "z", the axis drawn upwards when it opens.
 // Mouse: drag turns about the centre, wheel zooms, shift- or right-drag moves, double-click resets.
 (function () {
   "use strict";
@@ -77,22 +79,29 @@
     return { name: c.name, colour: rgb(c.colour), hex: c.colour, rows: c.rows, count: c.drawn,
              buffer: buffer, shown: true };
   });
-  var radius = 0.5 * Math.hypot(data.extent[0], data.extent[1], data.extent[2]);
+  var whole = 0.5 * Math.hypot(data.extent[0], data.extent[1], data.extent[2]) || 1;
+  function radius(v) { return data.views[v].radius || whole; }  // one point, or none: the box of all
 
-  // camera: orbit about target at distance, yaw about the up axis, pitch above the horizon
-  var camera, mode = 0, zUp = false;  // mode: index of the view shown; views.length for side by side
+  // camera: orbit about target, yaw about the up axis, pitch above the horizon; each view at the distance that
+  // fits its sphere into its part of the canvas, times zoom
+  var camera, mode = data.first || 0, zUp = data.up === "z";  // mode: the view shown; views.length: side by side
   function reset() {
-    camera = { yaw: 0.6, pitch: 0.35, distance: 2.2 * radius, target: [0, 0, 0] };
+    camera = { yaw: 0.6, pitch: 0.35, zoom: 1, target: [0, 0, 0] };
     redraw();
+  }
+  var MARGIN = 0.92;  // the sphere's outline at most this share of the way from the middle to the nearer edge
+  function distance(v, aspect) {  // eye to target that shows the sphere of view v whole, times zoom
+    var p = projection(aspect, 1, 2), t = MARGIN / Math.max(p[0], p[5]);  // tan of the sphere's half-angle
+    return camera.zoom * radius(v) * Math.sqrt(1 + 1 / (t * t));
   }
   function dot(a, b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
   function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }
   function unit(a) { var n = Math.hypot(a[0], a[1], a[2]) || 1; return [a[0] / n, a[1] / n, a[2] / n]; }
-  function frame() {  // eye, right, up (unit vectors) of the camera
+  function frame(distance) {  // eye, right, up (unit vectors) of the camera at distance from its target
     var cp = Math.cos(camera.pitch), sp = Math.sin(camera.pitch);
     var cy = Math.cos(camera.yaw), sy = Math.sin(camera.yaw);
     var back = zUp ? [cp * sy, -cp * cy, sp] : [cp * sy, sp, cp * cy];
-    var eye = camera.target.map(function (t, i) { return t + camera.distance * back[i]; });
+    var eye = camera.target.map(function (t, i) { return t + distance * back[i]; });
     var right = unit(cross(zUp ? [0, 0, 1] : [0, 1, 0], back));
     return { eye: eye, back: back, right: right, up: cross(back, right) };
   }
@@ -114,16 +123,17 @@
     var ratio = window.devicePixelRatio || 1;
     var w = Math.max(1, Math.round(canvas.clientWidth * ratio)), h = Math.max(1, Math.round(canvas.clientHeight * ratio));
     if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
-    var f = frame(), middle = dot(f.eye, f.back);  // view depth of the box centre (the origin)
-    var near = Math.max(camera.distance * 0.005, middle - 3 * radius), far = middle + 3 * radius + camera.distance;
-    gl.uniformMatrix4fv(at.view, false, viewMatrix(f));
-    gl.uniform2f(at.depth, middle - radius, middle + radius);
     gl.uniform1f(at.size, parseFloat(document.getElementById("size").value) * ratio);
-    var shown = mode < data.views.length ? [mode] : data.views.map(function (v, i) { return i; });
     gl.scissor(0, 0, w, h);
     gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+    var shown = shownViews();
     shown.forEach(function (v, k) {
       var x0 = Math.round(k * w / shown.length), x1 = Math.round((k + 1) * w / shown.length);
+      var r = radius(v), d = distance(v, (x1 - x0) / h), f = frame(d);
+      var middle = dot(f.eye, f.back);  // view depth of the view's centre (the origin)
+      var near = Math.max(d * 0.005, middle - 3 * r), far = middle + 3 * r + d;
+      gl.uniformMatrix4fv(at.view, false, viewMatrix(f));
+      gl.uniform2f(at.depth, middle - r, middle + r);
       gl.viewport(x0, 0, x1 - x0, h);
       gl.scissor(x0, 0, x1 - x0, h);
       gl.uniformMatrix4fv(at.proj, false, projection((x1 - x0) / h, near, far));
@@ -147,8 +157,12 @@
     state.frames++;
   }
 
-  // legend: one line per cloud of the views, a click hides or shows it
-  var legend = document.getElementById("legend");
+  function shownViews() {
+    return mode < data.views.length ? [mode] : data.views.map(function (v, i) { return i; });
+  }
+
+  // legend: one entry per cloud of the views, a click hides or shows it
+  var legend = document.getElementById("legend"), COUNTED = 6;
   clouds.forEach(function (cloud) {
     var label = document.createElement("label"), box = document.createElement("input");
     box.type = "checkbox";
@@ -159,8 +173,10 @@
     swatch.style.background = cloud.hex;
     label.appendChild(box);
     label.appendChild(swatch);
-    label.appendChild(document.createTextNode(cloud.name + "  (" + (cloud.count ? cloud.count.toLocaleString("en") +
-      (cloud.count < cloud.rows ? " of " + cloud.rows.toLocaleString("en") : "") + " points)" : "not drawn)")));
+    var count = cloud.count ? cloud.count.toLocaleString("en") + (cloud.count < cloud.rows ? " of " +
+      cloud.rows.toLocaleString("en") : "") + " points" : "not drawn";
+    label.title = cloud.name + " (" + count + ")";  // many clouds: the names alone, the counts on hovering
+    label.appendChild(document.createTextNode(clouds.length > COUNTED ? cloud.name : label.title));
     legend.appendChild(label);
   });
 
@@ -178,6 +194,7 @@
   function markView() { buttons.forEach(function (b, i) { b.className = i === mode ? "on" : ""; }); }
   markView();
   var upButton = document.getElementById("up");
+  upButton.textContent = zUp ? "z" : "y";
   upButton.onclick = function () { zUp = !zUp; upButton.textContent = zUp ? "z" : "y"; redraw(); };
   document.getElementById("size").oninput = redraw;
   document.getElementById("reset").onclick = reset;
@@ -194,7 +211,8 @@
     drag.x = e.clientX;
     drag.y = e.clientY;
     if (drag.move) {
-      var f = frame(), s = camera.distance / canvas.clientHeight;
+      var shown = shownViews(), aspect = canvas.clientWidth / shown.length / canvas.clientHeight;
+      var d = distance(shown[0], aspect), f = frame(d), s = d / canvas.clientHeight;
       camera.target = camera.target.map(function (t, i) { return t - s * (dx * f.right[i] - dy * f.up[i]); });
     } else {
       camera.yaw -= dx * 0.008;
@@ -208,9 +226,10 @@
   canvas.addEventListener("dblclick", reset);
   canvas.addEventListener("wheel", function (e) {
     e.preventDefault();
-    camera.distance = Math.max(radius * 0.05, Math.min(radius * 50, camera.distance * Math.exp(e.deltaY * 0.0015)));
+    camera.zoom = Math.max(0.05, Math.min(50, camera.zoom * Math.exp(e.deltaY * 0.0015)));
     redraw();
   }, { passive: false });
   window.addEventListener("resize", redraw);
+  if (window.ResizeObserver) new ResizeObserver(redraw).observe(canvas);  // the bar or the banner may change size
   reset();
 })();
