@@ -4,7 +4,7 @@ binary and ASCII, with alpha 255 (a NaN as a float32) and without; the writer's 
 import numpy as np
 import pytest
 
-from rpmnet_jax.io import clouds as cloud_io
+from rpmnet_jax.io import clouds as cloud_io, columns, pcd
 
 
 def _colours(alpha: int) -> tuple:
@@ -60,3 +60,23 @@ def test_written_packed_colours_read_back(tmp_path):
     cloud = cloud_io.read(str(tmp_path / "c.pcd"))
     np.testing.assert_array_equal(cloud.colours, rgb)
     np.testing.assert_array_equal(cloud.points, points)
+
+
+def test_a_viewpoint_is_where_the_sensor_stood_and_moves_with_the_cloud(tmp_path):
+    """PCL's ``VIEWPOINT tx ty tz qw qx qy qz``: its translation is the sensor's position in the cloud's coordinates
+    (``None`` for PCL's default, which says nothing); a bad line is one error; ``moved`` moves it with the points."""
+    body = "1 2 3\n4 5 6\n"
+
+    def write(viewpoint):
+        path = tmp_path / "v.pcd"
+        path.write_text(f"VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\n"
+                        f"VIEWPOINT {viewpoint}\nPOINTS 2\nDATA ascii\n{body}")
+        return str(path)
+
+    assert pcd.read(write("0 0 0 1 0 0 0")).viewpoint is None
+    cloud = pcd.read(write("10.5 -2 0.25 1 0 0 0"))
+    assert cloud.viewpoint.tolist() == [10.5, -2.0, 0.25]
+    turn = np.array([[0.0, -1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+    assert cloud.moved(turn).viewpoint.tolist() == [3.0, 10.5, 0.25]
+    with pytest.raises(columns.CloudError, match="VIEWPOINT"):
+        pcd.read(write("1 2 3"))

@@ -255,9 +255,14 @@ def test_a_sigkilled_run_resumes_from_its_cache_with_the_same_poses(tmp_path, ra
 
 
 def test_a_stored_e57_pose_is_where_its_scanner_stood():
-    """Scans moved into an E57 file's frame by their stored poses have their sensors at the poses' origins; the
-    others follow ``--viewpoints``."""
+    """Scans moved into an E57 file's frame by their stored poses have their sensors at the poses' origins; a PCD's
+    VIEWPOINT is its sensor; the others follow ``--viewpoints``."""
+    from rpmnet_jax.io import columns
+
     pose = np.eye(4)
     pose[:3, 3] = [512_000.0, 4_100_000.0, 120.0]
-    found = register_scans._viewpoints([np.eye(4), pose], "origin")
+    plain, seen = columns.Cloud(np.zeros((3, 3))), columns.Cloud(np.zeros((3, 3)), viewpoint=np.array([1.0, 2.0, 3.0]))
+    found = register_scans._viewpoints(register_scans._Scans(["a", "b", "c"], [plain, plain, seen],
+                                                             [np.eye(4), pose, np.eye(4)], []), "origin")
     assert found[0] == "origin" and found[1].tolist() == [512_000.0, 4_100_000.0, 120.0]
+    assert found[2].tolist() == [1.0, 2.0, 3.0]

@@ -54,7 +54,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="where each scan's sensor stood (estimated normals face it): auto (default: a scan's frame "
                         "origin when the scan surrounds it, as a LiDAR sweep or a scanner station in its own frame "
                         "does), origin (every scan is in its sensor's frame), none (objects: normals face away "
-                        "from each scan's centre). An E57 scan with a stored pose has its sensor there")
+                        "from each scan's centre). An E57 scan with a stored pose, or a PCD with a VIEWPOINT, has "
+                        "its sensor there")
     p.add_argument("--refine", choices=("joint", "icp", "none"), default="joint",
                    help="the final refinement over every overlapping pair: all poses together on the pairs' points "
                         "(joint, default), rounds of pairwise ICP edges in a pose graph (icp), or none")
@@ -119,12 +120,13 @@ def _read_scans(paths: list, columns) -> tuple:
     return labels, clouds, stored, notes
 
 
-def _viewpoints(stored: list, rule: str) -> list:
+def _viewpoints(scans: "_Scans", rule: str) -> list:
     """Per scan: its stored pose's origin (an E57 scan moved into the file's frame: the scanner stood there), else
-    ``rule``."""
+    the viewpoint its file gives (a PCD's ``VIEWPOINT``), else ``rule``."""
     import numpy as np
 
-    return [rule if np.array_equal(pose, np.eye(4)) else np.asarray(pose, np.float64)[:3, 3] for pose in stored]
+    return [np.asarray(pose, np.float64)[:3, 3] if not np.array_equal(pose, np.eye(4))
+            else (rule if c.viewpoint is None else c.viewpoint) for pose, c in zip(scans.stored, scans.clouds)]
 
 
 def _engine(args) -> tuple:
@@ -220,7 +222,7 @@ def _align(args, scans: _Scans, scheduler, cache) -> tuple:
         warnings.simplefilter("always")
         try:
             result = scan_alignment.align_scans([c.points for c in scans.clouds], [c.normals for c in scans.clouds],
-                                                options=options, viewpoints=_viewpoints(scans.stored, args.viewpoints),
+                                                options=options, viewpoints=_viewpoints(scans, args.viewpoints),
                                                 checkpoint=args.checkpoint, progress=bars, scheduler=scheduler,
                                                 cache=cache)
         finally:

@@ -46,18 +46,23 @@ def unreadable(path: str, kind: str, error: Exception) -> CloudError:
 @dataclasses.dataclass(frozen=True)
 class Cloud:
     """One point cloud as read: ``points (N, 3)`` float64 (NaN rows stay), and per point ``normals (N, 3)``,
-    ``colours (N, 3)`` (the file's own values: 0–255, 0–65535 or 0–1) and ``intensity (N,)``, each or ``None``."""
+    ``colours (N, 3)`` (the file's own values: 0–255, 0–65535 or 0–1) and ``intensity (N,)``, each or ``None``;
+    ``viewpoint (3,)``: where the file says its sensor stood, in the cloud's coordinates (a PCD's ``VIEWPOINT``
+    other than PCL's default), else ``None``."""
 
     points: np.ndarray
     normals: np.ndarray | None = None
     colours: np.ndarray | None = None
     intensity: np.ndarray | None = None
+    viewpoint: np.ndarray | None = None
 
     def moved(self, transform: np.ndarray) -> "Cloud":
         """The cloud moved by ``transform (4, 4)`` (points ``p @ R.T + t``, normals rotated; the rest kept)."""
         t = np.asarray(transform, np.float64)
         normals = None if self.normals is None else self.normals @ t[:3, :3].T
-        return dataclasses.replace(self, points=self.points @ t[:3, :3].T + t[:3, 3], normals=normals)
+        viewpoint = None if self.viewpoint is None else t[:3, :3] @ self.viewpoint + t[:3, 3]
+        return dataclasses.replace(self, points=self.points @ t[:3, :3].T + t[:3, 3], normals=normals,
+                                   viewpoint=viewpoint)
 
     def rows(self, keep: np.ndarray) -> "Cloud":
         """The rows ``keep`` (a boolean mask or indices) of every field."""

@@ -3,6 +3,7 @@ written in float64 (colours that are bytes as PCL's packed ``rgb``)."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import warnings
 
@@ -64,7 +65,26 @@ def read(path: str, columns=None) -> cols.Cloud:
             continue
         else:
             raise cols.CloudError(f"{path}: --columns cannot name the {count}-value PCD field {name!r}")
-    return cols.from_fields(path, names, values, columns)
+    cloud = cols.from_fields(path, names, values, columns)
+    viewpoint = _viewpoint(path, header.get("VIEWPOINT"))
+    return cloud if viewpoint is None else dataclasses.replace(cloud, viewpoint=viewpoint)
+
+
+DEFAULT_VIEWPOINT = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)  # PCL's "tx ty tz qw qx qy qz" when nothing is known
+
+
+def _viewpoint(path: str, values) -> np.ndarray | None:
+    """The sensor position ``(3,)`` of a ``VIEWPOINT`` header line (PCL's ``sensor_origin_``: where the sensor
+    stood in the cloud's coordinates), ``None`` when absent or PCL's default."""
+    if values is None:
+        return None
+    try:
+        numbers = tuple(float(v) for v in values)
+    except ValueError:
+        raise cols.CloudError(f"{path}: PCD VIEWPOINT must be 7 numbers (tx ty tz qw qx qy qz), got {values}") from None
+    if len(numbers) != 7 or not np.all(np.isfinite(numbers)):
+        raise cols.CloudError(f"{path}: PCD VIEWPOINT must be 7 finite numbers (tx ty tz qw qx qy qz), got {values}")
+    return None if numbers == DEFAULT_VIEWPOINT else np.array(numbers[:3])
 
 
 def _packed_colour(name: str, count: int) -> bool:
