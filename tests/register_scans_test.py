@@ -266,3 +266,20 @@ def test_a_stored_e57_pose_is_where_its_scanner_stood():
                                                              [np.eye(4), pose, np.eye(4)], []), "origin")
     assert found[0] == "origin" and found[1].tolist() == [512_000.0, 4_100_000.0, 120.0]
     assert found[2].tolist() == [1.0, 2.0, 3.0]
+
+
+def test_the_page_banner_names_doubtful_scans_and_edges_and_those_left_out():
+    """``--html``'s banner: the scans resting on a likely wrong registration, the kept edges at or above the edge
+    doubt model's threshold (not those below), and the scans left out, by name."""
+    import types
+
+    from rpmnet_jax.multiway import edge_doubt
+    from rpmnet_jax.pair_edges import edges
+
+    bar = edge_doubt.load().threshold
+    edge = lambda i, j, p: edges.Edge(i, j, np.eye(4), 0.9, 0.01, np.eye(6), 0.001, "classical", p)
+    result = types.SimpleNamespace(likely_wrong=(1,), left_out=(3,), edges=[edge(0, 1, bar), edge(0, 2, 0.99 * bar)])
+    banner = " ".join(register_scans._alerts(result, ["a.ply", "b.ply", "c.ply", "d.ply"]))
+    assert "b.ply" in banner and "a.ply → b.ply" in banner and "d.ply" in banner and "c.ply" not in banner
+    assert register_scans._alerts(types.SimpleNamespace(likely_wrong=(), left_out=(), edges=[edge(0, 1, 0.0)]),
+                                  ["a.ply", "b.ply"]) == []

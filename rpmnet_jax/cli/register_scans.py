@@ -171,7 +171,8 @@ def main(argv=None) -> int:
     if args.html:
         from rpmnet_jax.report import pages
         pages.scans_report(args.html, [moved.get(s) for s in range(len(scans.names))], scans.names,
-                           _report_numbers(result, scans.names, scans.clouds, clock.elapsed()))
+                           _report_numbers(result, scans.names, scans.clouds, clock.elapsed()),
+                           alerts=_alerts(result, scans.names))
     return 0
 
 
@@ -236,6 +237,7 @@ def _say(scans: _Scans, result, caught, seconds: float, t_read: float) -> None:
 
     from rpmnet_jax.multiway import scan_alignment
     from rpmnet_jax.ops import se3
+    from rpmnet_jax.report import formats
 
     names = scans.names
     for note in scans.notes:
@@ -252,14 +254,25 @@ def _say(scans: _Scans, result, caught, seconds: float, t_read: float) -> None:
     print(f"{'scan':<24} {'rotation deg':>12} {'translation':>12} {'edges':>5}")
     for s in _placed(result, names):
         degree = sum(s in (e.source, e.target) for e in result.edges)
-        print(f"{names[s]:<24} {float(se3.rotation_angle_deg(result.poses[s, :3, :3])):>12.2f} "
-              f"{float(np.linalg.norm(result.poses[s, :3, 3])):>12.6g} {degree:>5}")
+        print(f"{names[s]:<24} {formats.number(se3.rotation_angle_deg(result.poses[s, :3, :3])):>12} "
+              f"{formats.number(np.linalg.norm(result.poses[s, :3, 3])):>12} {degree:>5}")
     for e in result.rejected:
-        print(f"rejected edge {names[e.source]} -> {names[e.target]} ({e.stage}, fitness {e.fitness:.2f})")
+        print(f"rejected edge {names[e.source]} -> {names[e.target]} ({e.stage}, fitness {formats.number(e.fitness)})")
     stages = "  ".join(f"{k} {v:.2f}" for k, v in result.timings.items() if k != "total")
-    print(f"{len(result.edges)} edges, {len(result.rejected)} rejected; voxel {result.voxel_size:.4g}, "
-          f"max_correspondence_distance {result.max_correspondence_distance:.4g}; time {seconds:.2f} s "
+    print(f"{len(result.edges)} edges, {len(result.rejected)} rejected; voxel {formats.number(result.voxel_size)}, "
+          f"max_correspondence_distance {formats.number(result.max_correspondence_distance)}; time {seconds:.2f} s "
           f"(read {t_read:.2f}  {stages})")
+
+
+def _alerts(result, names) -> list:
+    """The page's banner: the scans resting on a likely wrong registration, the kept edges flagged likely wrong,
+    the scans left out."""
+    from rpmnet_jax.multiway import edge_doubt
+    from rpmnet_jax.report import alerts
+
+    bar = edge_doubt.load().threshold
+    return alerts.scans([names[s] for s in result.likely_wrong], [names[s] for s in result.left_out],
+                        [(names[e.source], names[e.target], e.p_wrong) for e in result.edges if e.p_wrong >= bar])
 
 
 def _placed(result, names) -> list:
@@ -304,7 +317,7 @@ def _report_numbers(result, names, clouds, seconds: float) -> dict:
 
     def edges(found):
         return [{"source": names[e.source], "target": names[e.target], "stage": e.stage, "fitness": e.fitness,
-                 "inlier RMSE": e.inlier_rmse} for e in found]
+                 "inlier RMSE": e.inlier_rmse, "p_wrong": e.p_wrong} for e in found]
     scans = [{"scan": names[s], "points": len(clouds[s].points),
               "rotation (deg)": float(se3.rotation_angle_deg(result.poses[s, :3, :3])),
               "translation": float(np.linalg.norm(result.poses[s, :3, 3])),
