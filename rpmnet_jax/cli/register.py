@@ -146,14 +146,14 @@ def _report_numbers(args, result, seconds: float) -> dict:
     from rpmnet_jax.ops import se3
 
     best = result.candidates[0] if result.candidates else None
-    candidates = [{"start": c.init, "deg from best": float(se3.rotation_angle_deg(c.transform[:3, :3] @
+    candidates = [{"init": c.init, "deg from best": float(se3.rotation_angle_deg(c.transform[:3, :3] @
                                                                                   best.transform[:3, :3].T)),
                    "score / best": c.score / best.score if best.score else float("nan"), "fitness": c.fitness,
                    "inlier RMSE": c.inlier_rmse} for c in result.candidates]
     return {"source": os.path.basename(args.src), "reference": os.path.basename(args.ref),
             "transform (source onto reference)": result.transform, "fitness": result.fitness,
             "inlier RMSE": result.inlier_rmse, "correspondence distance": result.max_correspondence_distance,
-            "start": result.init, "ICP iterations": f"{result.num_iterations}"
+            "init": result.init, "ICP iterations": f"{result.num_iterations}"
                                                     f"{'' if result.converged else ' (not converged)'}",
             "confidence": result.confidence, "points used": f"{result.num_points[0]} / {result.num_points[1]}",
             "time (s)": seconds, "ambiguous": result.ambiguous, "p_wrong": result.p_wrong,
