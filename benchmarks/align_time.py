@@ -32,7 +32,7 @@ def main() -> None:
 
     from rpmnet_jax import data
     from rpmnet_jax.ops import se3
-    from rpmnet_jax.pairwise import alignment
+    from rpmnet_jax.pairwise import alignment, options
     from rpmnet_jax.weights import loading
 
     ds = data.ModelNet40(a.data_root, "val", a.dataset, num_points=a.points, rot_mag=a.rot_mag)
@@ -50,7 +50,7 @@ def main() -> None:
             t0 = time.perf_counter()
             if method == "rpmnet_auto":
                 res = alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params,
-                                      num_points=max(len(s), len(r)))
+                                      network_options=options.NetworkOptions(max(len(s), len(r))))
                 transform = res.transform
             else:
                 from rpmnet_jax.evaluation import baselines

@@ -33,7 +33,7 @@ def main() -> None:
 
     from rpmnet_jax import data
     from rpmnet_jax.ops import se3
-    from rpmnet_jax.pairwise import alignment
+    from rpmnet_jax.pairwise import alignment, options
     from rpmnet_jax.weights import loading
 
     ds = data.ModelNet40(a.data_root, "val", a.dataset, rot_mag=a.rot_mag)
@@ -47,7 +47,7 @@ def main() -> None:
         for init in ("classical", "auto"):
             t0 = time.perf_counter()
             res = alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params, init=init,
-                                  num_points=max(len(s), len(r)))
+                                  network_options=options.NetworkOptions(max(len(s), len(r))))
             row += [time.perf_counter() - t0, float(se3.rotation_angle_deg(res.transform[:3, :3] @ gt[:3, :3].T))]
         row += ["network" in res.stages, "global" in res.stages]
         if i == 0:  # warm-up: every compilation, the network's local and global paths too

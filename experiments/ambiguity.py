@@ -25,12 +25,13 @@ SHARES = (0.8, 0.85, 0.9, 0.95)
 
 def _rows(ds, indices, params, group):
     from rpmnet_jax import metrics
-    from rpmnet_jax.pairwise import alignment
+    from rpmnet_jax.pairwise import alignment, options
     out = []
     for i in indices:
         d = ds[int(i)]
         s, r = np.asarray(d["points_src"], np.float64), np.asarray(d["points_ref"], np.float64)
-        a = alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params, num_points=max(len(s), len(r)))
+        a = alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params,
+                            network_options=options.NetworkOptions(max(len(s), len(r))))
         err = lambda t: metrics.transform_errors(t[:3], d["transform_gt"])[0]
         scores = [c.score for c in a.candidates]
         out.append({"group": group, "protocol": ds.protocol, "idx": int(i), "label": ds.class_names[d["label"]],

@@ -44,14 +44,14 @@ def _record(a, gt, **meta) -> dict:
 
 def crop_records(root: str):
     from rpmnet_jax import data
-    from rpmnet_jax.pairwise import alignment
+    from rpmnet_jax.pairwise import alignment, options
     for rot in (45.0, 180.0):
         ds = data.ModelNet40(root, "val", "partial", rot_mag=rot)
         for i in range(len(ds)):
             d = ds[i]
             s, r = (np.asarray(d[k], np.float64) for k in ("points_src", "points_ref"))
             a = alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], init="classical",
-                                num_points=max(len(s), len(r)))
+                                network_options=options.NetworkOptions(max(len(s), len(r))))
             yield _record(a, np.asarray(d["transform_gt"], np.float64), kind="crops", set=root, rot_mag=rot, idx=i)
 
 

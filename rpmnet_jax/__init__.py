@@ -18,6 +18,7 @@ _PUBLIC = {
     "align_scans": "rpmnet_jax.multiway.scan_alignment", "init_params": "rpmnet_jax.nn.pointnets",
     "Alignment": "rpmnet_jax.pairwise.alignment", "Answer": "rpmnet_jax.pairwise.alignment",
     "align": "rpmnet_jax.pairwise.alignment", "GlobalOptions": "rpmnet_jax.pairwise.options",
+    "NetworkOptions": "rpmnet_jax.pairwise.options",
     "RefineOptions": "rpmnet_jax.pairwise.options", "Registration": "rpmnet_jax.registration",
     "register": "rpmnet_jax.registration", "convert": "rpmnet_jax.weights.convert",
     "load_default_params": "rpmnet_jax.weights.loading", "load_params": "rpmnet_jax.weights.loading",
@@ -37,7 +38,7 @@ def __dir__():
     return sorted(set(globals()) | set(_PUBLIC))
 
 
-__all__ = ["Alignment", "Answer", "GlobalOptions", "RPMNetConfig", "RefineOptions", "Registration", "ScanAlignment",
-           "ScanOptions", "align", "align_scans", "convert", "evaluate_registration", "init_params",
+__all__ = ["Alignment", "Answer", "GlobalOptions", "NetworkOptions", "RPMNetConfig", "RefineOptions", "Registration",
+           "ScanAlignment", "ScanOptions", "align", "align_scans", "convert", "evaluate_registration", "init_params",
            "load_default_params", "load_params", "register"]
 __version__ = "0.1.0"

@@ -16,7 +16,8 @@ def test_transform_is_rigid_and_in_callers_units(random_weights, centering):
     """A similarity applied to both inputs conjugates the answer: rotation unchanged, translation mapped."""
     src, src_n = synthetic_shape(seed=2, n=800)
     ref = src @ Rotation.from_euler("z", 30, degrees=True).as_matrix().T + 0.1
-    kw = dict(checkpoint=random_weights, num_points=256, num_iters=2, centering=centering, init="local")
+    kw = dict(checkpoint=random_weights, network_options=rpmnet_jax.NetworkOptions(256, 2, centering=centering),
+              init="local")
     a = rpmnet_jax.align(src, ref, src_n, None, **kw)
     k, off = 250.0, np.array([1e3, -50.0, 7.0])
     b = rpmnet_jax.align(src * k + off, ref * k + off, src_n, None, **kw)
@@ -37,14 +38,15 @@ def test_separate_centering_follows_a_shift_of_the_reference(random_weights):
     src, src_n = synthetic_shape(seed=4, n=600)
     ref, ref_n = synthetic_shape(seed=5, n=600)
     d = np.array([300.0, -20.0, 45.0])
-    kw = dict(checkpoint=random_weights, num_points=200, num_iters=2, init="local")
+    kw = dict(checkpoint=random_weights, network_options=rpmnet_jax.NetworkOptions(200, 2), init="local")
     a = rpmnet_jax.align(src, ref, src_n, ref_n, **kw)
     b = rpmnet_jax.align(src, ref + d, src_n, ref_n, **kw)
     # the network sees identical centred clouds: only float64 round-off of the shift remains (measured 1e-16 and 0)
     np.testing.assert_allclose(b.transform[:3, :3], a.transform[:3, :3], atol=1e-6)
     np.testing.assert_allclose(b.transform[:3, 3], a.transform[:3, 3] + d, atol=1e-4)
     with pytest.raises(ValueError, match="centering"):
-        rpmnet_jax.align(src, ref, src_n, ref_n, checkpoint=random_weights, centering="median")
+        rpmnet_jax.align(src, ref, src_n, ref_n, checkpoint=random_weights,
+                         network_options=rpmnet_jax.NetworkOptions(centering="median"))
 
 
 def test_refine_none_returns_the_network_answer(random_weights):
@@ -52,7 +54,7 @@ def test_refine_none_returns_the_network_answer(random_weights):
     moves the answer."""
     src, src_n = synthetic_shape(seed=6, n=900)
     ref, ref_n = synthetic_shape(seed=7, n=900)
-    kw = dict(checkpoint=random_weights, num_points=300, init="local")
+    kw = dict(checkpoint=random_weights, network_options=rpmnet_jax.NetworkOptions(300), init="local")
     raw = rpmnet_jax.align(src, ref, src_n, ref_n, refine="none", **kw)
     assert raw.transforms.shape == (5, 4, 4)
     np.testing.assert_array_equal(raw.transform, raw.transforms[-1])
@@ -68,7 +70,7 @@ def test_an_unconverged_winner_is_refined_further(random_weights):
     from rpmnet_jax.pairwise import candidates
     src, src_n = synthetic_shape(seed=6, n=900)
     rot = Rotation.from_euler("xyz", [12, -8, 10], degrees=True).as_matrix()
-    kw = dict(checkpoint=random_weights, num_points=300, init="local")
+    kw = dict(checkpoint=random_weights, network_options=rpmnet_jax.NetworkOptions(300), init="local")
     short = rpmnet_jax.RefineOptions(scales=(1.0,), max_iterations=1)
     a = rpmnet_jax.align(src, src @ rot.T, src_n, src_n @ rot.T, refine_options=short, **kw)
     assert 1 < a.num_iterations <= 1 + candidates.POLISH_FACTOR
@@ -80,7 +82,7 @@ def test_pipeline_results_are_scored_by_nearest_neighbours_and_deterministic(ran
     src, src_n = synthetic_shape(seed=8, n=1500)
     other, _ = synthetic_shape(seed=9, n=1500)  # another sample of the same surface: not every point has a close partner
     ref = other @ Rotation.from_euler("y", 20, degrees=True).as_matrix().T * 3.0 + 5.0
-    kw = dict(checkpoint=random_weights, num_points=256, num_iters=2, init="local", seed=3)
+    kw = dict(checkpoint=random_weights, network_options=rpmnet_jax.NetworkOptions(256, 2), init="local", seed=3)
     a = rpmnet_jax.align(src * 3.0, ref, src_n, None, **kw)
     b = rpmnet_jax.align(src * 3.0, ref, src_n, None, **kw)
     np.testing.assert_array_equal(a.transform, b.transform)
@@ -131,7 +133,7 @@ def test_too_few_points_for_icp_ask_for_refine_none(random_weights):
         with pytest.raises(ValueError, match=r"ICP.*refine='none'"):
             rpmnet_jax.align(src, src @ turn.T + 0.1, checkpoint=random_weights)
     a = rpmnet_jax.align(src, src @ turn.T + 0.1, checkpoint=random_weights, refine="none", init="local",
-                         num_iters=1)
+                         network_options=rpmnet_jax.NetworkOptions(iters=1))
     rot = a.transform[:3, :3]
     assert np.all(np.isfinite(a.transform)) and a.num_points == (5, 5) and a.aligned.shape == (5, 3)
     np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-5)  # float32 network answer
@@ -149,7 +151,7 @@ def test_nan_rows_keep_the_callers_row_numbers(random_weights):
     src_nan[bad_src] = np.nan
     ref_nan[bad_ref, 1] = np.inf
     keep_s, keep_r = np.setdiff1d(np.arange(700), bad_src), np.setdiff1d(np.arange(650), bad_ref)
-    kw = dict(checkpoint=random_weights, num_points=256, num_iters=2, init="local")
+    kw = dict(checkpoint=random_weights, network_options=rpmnet_jax.NetworkOptions(256, 2), init="local")
     with pytest.warns(UserWarning, match="dropped"):
         a = rpmnet_jax.align(src_nan, ref_nan, src_n, None, **kw)
     b = rpmnet_jax.align(src[keep_s], ref[keep_r], src_n[keep_s], None, **kw)
@@ -172,7 +174,7 @@ def test_a_stray_far_point_does_not_change_the_answer(random_weights, cloud):
     src, src_n = synthetic_shape(seed=14, n=600)
     ref, ref_n = synthetic_shape(seed=15, n=600)
     ref = ref @ Rotation.from_euler("x", 40, degrees=True).as_matrix().T + 0.2
-    kw = dict(checkpoint=random_weights, num_iters=2,
+    kw = dict(checkpoint=random_weights, network_options=rpmnet_jax.NetworkOptions(iters=2),
               global_options=rpmnet_jax.GlobalOptions(auto_fitness=1.0, network_fitness=1.0))
     clean = rpmnet_jax.align(src, ref, src_n, ref_n, **kw)
     assert {"global", "classical", "network"} <= set(clean.stages)
@@ -195,7 +197,7 @@ def test_deterministic_under_a_seed_and_the_global_screen_follows_it(random_weig
 
     src, src_n = synthetic_shape(seed=16, n=500)
     ref, _ = synthetic_shape(seed=17, n=500)
-    kw = dict(checkpoint=random_weights, num_points=256, num_iters=2, init="global", seed=4)
+    kw = dict(checkpoint=random_weights, network_options=rpmnet_jax.NetworkOptions(256, 2), init="global", seed=4)
     a, b = rpmnet_jax.align(src, ref, src_n, None, **kw), rpmnet_jax.align(src, ref, src_n, None, **kw)
     np.testing.assert_array_equal(a.transform, b.transform)
     np.testing.assert_array_equal(a.correspondences, b.correspondences)

@@ -41,7 +41,8 @@ def test_scheduler_values():
 
 
 def test_in_process_imports_no_dask():
-    code = ("import sys; from rpmnet_jax.pair_edges import pair_engine; from rpmnet_jax.multiway import scan_alignment\n"
+    code = ("import sys; from rpmnet_jax.pair_edges import pair_engine\n"
+            "from rpmnet_jax.multiway import scan_alignment\n"
             "with pair_engine.PairEngine(None): pass\n"
             "print(sorted(m for m in ('dask', 'distributed') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

@@ -60,6 +60,7 @@ def test_a_cloud_above_max_points_is_registered_on_a_subset_of_its_rows(monkeypa
     """Above ``MAX_POINTS`` rows only a seeded subset is kept (rows into the caller's arrays, in order, NaN rows never
     picked), and ``align`` still moves every row of the caller's source."""
     from rpmnet_jax.pairwise import alignment
+    from rpmnet_jax.pairwise.options import NetworkOptions
 
     monkeypatch.setattr(prepare, "MAX_POINTS", 500)
     pts, nrm = _shape(seed=3, n=2000)
@@ -71,7 +72,8 @@ def test_a_cloud_above_max_points_is_registered_on_a_subset_of_its_rows(monkeypa
     np.testing.assert_array_equal(pair.src, pts[pair.src_rows])
     assert not np.array_equal(pair.src_rows, pair.ref_rows)  # each cloud its own subset
     with pytest.warns(UserWarning, match="dropped 1 points"):
-        a = alignment.align(pts, pts, nrm, nrm, init="classical", num_points=256)
+        a = alignment.align(pts, pts, nrm, nrm, init="classical",
+                            network_options=NetworkOptions(256))
     assert a.aligned.shape == pts.shape and np.isnan(a.aligned[7]).all()
     np.testing.assert_allclose(a.transform, np.eye(4), atol=1e-4)  # two subsets of one cloud: the identity
     assert set(a.correspondences[:, 0]) <= set(prepare.prepare_pair(pts, pts, nrm, nrm, num_points=256).src_rows)

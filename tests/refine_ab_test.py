@@ -24,8 +24,8 @@ def test_ours_is_aligns_refinement_from_the_network_start():
     src, ref, _ = _pair()
     prepared = refine_ab.Prepared(src, ref)
     ours = prepared.refine(prepared.network_start(params, num_iters=2))
-    a = rpmnet_jax.align(src[:, :3], ref[:, :3], src[:, 3:], ref[:, 3:], params=params, num_iters=2,
-                         num_points=len(src), init="local")
+    a = rpmnet_jax.align(src[:, :3], ref[:, :3], src[:, 3:], ref[:, 3:], params=params,
+                         network_options=rpmnet_jax.NetworkOptions(len(src), 2), init="local")
     np.testing.assert_allclose(ours.transform, a.transform, atol=1e-12)
     assert (ours.converged, ours.num_iterations) == (a.converged, a.num_iterations)
 

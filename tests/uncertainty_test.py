@@ -26,7 +26,8 @@ def root():
 
 def _align(pair, **kw):
     s, r = pair["points_src"], pair["points_ref"]
-    return rpmnet_jax.align(s[:, :3], r[:, :3], s[:, 3:], r[:, 3:], num_points=len(s), **kw)
+    return rpmnet_jax.align(s[:, :3], r[:, :3], s[:, 3:], r[:, 3:], network_options=rpmnet_jax.NetworkOptions(len(s)),
+                            **kw)
 
 
 def _symmetric_pair(root):

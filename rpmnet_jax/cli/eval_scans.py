@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     from rpmnet_jax import metrics
     from rpmnet_jax.evaluation import protocol
     from rpmnet_jax.io import clouds as cloud_io, poses as poses_io
-    from rpmnet_jax.pairwise import alignment, prepare
+    from rpmnet_jax.pairwise import alignment, options, prepare
     from rpmnet_jax.weights import loading
     try:
         poses = poses_io.read_poses(os.path.join(a.scans, a.conf))
@@ -96,8 +96,9 @@ def main(argv=None) -> int:
         for name, fn in methods.items():
             t0 = time.perf_counter()
             if fn is None:
-                result = alignment.align(src, ref, src_n, ref_n, params=params, num_points=a.num_points,
-                                         num_iters=a.iters, seed=a.seed, **protocol.PIPELINES[name])
+                network = options.NetworkOptions(points=a.num_points, iters=a.iters)
+                result = alignment.align(src, ref, src_n, ref_n, params=params, network_options=network, seed=a.seed,
+                                         **protocol.PIPELINES[name])
                 pred = result.transform
             else:
                 pred = pair.to_callers_units(np.asarray(fn(pair.src6, pair.ref6))[0, -1])

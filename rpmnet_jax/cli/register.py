@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     from rpmnet_jax.cli import plots
     from rpmnet_jax.io import clouds as cloud_io
     from rpmnet_jax.ops import se3
-    from rpmnet_jax.pairwise import alignment as align_lib
+    from rpmnet_jax.pairwise import alignment as align_lib, options
     from rpmnet_jax.report import alerts, formats, pages
     from rpmnet_jax.weights import loading
 
@@ -84,10 +84,11 @@ def main(argv=None) -> int:
         t0 = time.time()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            result = align_lib.align(src, ref, src_n, ref_n, checkpoint=args.checkpoint, num_points=args.num_points,
-                                     num_iters=args.iters, sampling=args.sampling, seed=args.seed,
-                                     centering=args.centering, reestimate_normals=args.estimate_normals,
-                                     init=args.init, refine=args.refine,
+            network = options.NetworkOptions(points=args.num_points, iters=args.iters, sampling=args.sampling,
+                                             centering=args.centering)
+            result = align_lib.align(src, ref, src_n, ref_n, checkpoint=args.checkpoint, seed=args.seed,
+                                     init=args.init, refine=args.refine, network_options=network,
+                                     reestimate_normals=args.estimate_normals,
                                      max_correspondence_distance=args.max_correspondence_distance)
         seconds = time.time() - t0
     except (ValueError, OSError) as e:  # bad input, or a file that is missing, a folder, or unreadable

@@ -13,7 +13,7 @@ import numpy as np
 from rpmnet_jax import data, registration
 from rpmnet_jax.evaluation import baselines
 from rpmnet_jax.pairwise import alignment
-from rpmnet_jax.pairwise.options import GlobalOptions
+from rpmnet_jax.pairwise.options import GlobalOptions, NetworkOptions
 from rpmnet_jax.data import loader
 from rpmnet_jax import metrics
 from rpmnet_jax import config as config_lib
@@ -42,7 +42,8 @@ def _pipeline_fn(params, cfg, num_iters, options):
         out = []
         for s, r in zip(np.asarray(src, np.float64), np.asarray(ref, np.float64)):
             a = alignment.align(s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], params=params, cfg=cfg,
-                                num_iters=num_iters, num_points=max(len(s), len(r)), **options)
+                                network_options=NetworkOptions(points=max(len(s), len(r)), iters=num_iters),
+                                **options)
             out.append(a.transform[:3])
         return np.stack(out)[:, None]
     return run

@@ -2,8 +2,8 @@
 
 The pipeline around the paper's network (which itself is :func:`rpmnet_jax.register`, untouched):
 
-1. prepare: clean, centre each cloud, scale both into the unit sphere, sample ``num_points`` per cloud for the
-   network (:mod:`rpmnet_jax.pairwise.prepare`);
+1. prepare: clean, centre each cloud, scale both into the unit sphere, sample ``NetworkOptions.points`` per cloud
+   for the network (:mod:`rpmnet_jax.pairwise.prepare`);
 2. start: ``init="local"`` runs the network once from the identity; ``init="global"`` runs it from the
    rotation hypotheses of :mod:`rpmnet_jax.pairwise.global_search` in one batched call, polishes each answer
    with a short ICP and keeps the ``top_k`` best (:class:`~rpmnet_jax.pairwise.options.GlobalOptions`);
@@ -116,30 +116,28 @@ class Answer(NamedTuple):
 
 
 @threads.compiled_loops()  # BLAS leaves the cores to the compiled loops (geometry.threads)
-def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpoint=None, params=None,
-          num_points: int = 1024, num_iters: int = 5, sampling: str = "random", seed: int = 0,
-          reestimate_normals: bool = False, centering: str = "separate", init: str = "auto",
-          refine: str = "icp", max_correspondence_distance: float | None = None,
+def align(src_points, ref_points, src_normals=None, ref_normals=None, *, init: str = "auto", refine: str = "icp",
+          max_correspondence_distance: float | None = None, seed: int = 0, checkpoint=None, params=None,
+          network_options: options_lib.NetworkOptions = options_lib.NetworkOptions(),
           refine_options: options_lib.RefineOptions = options_lib.RefineOptions(),
           global_options: options_lib.GlobalOptions = options_lib.GlobalOptions(),
-          cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
+          reestimate_normals: bool = False, cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
     """Rigidly aligns ``src_points (N, 3)`` onto ``ref_points (M, 3)``; see the module docstring.
 
     Normals (``(N, 3)``, any length > 0) are estimated when missing or when ``reestimate_normals``.
     ``checkpoint``: orbax dir, ``.npz`` or official ``.pth``; default the shipped model (or pass ``params``).
-    ``sampling``: ``random`` or ``fps`` down to ``num_points`` per cloud for the network. ``centering``:
-    ``separate`` (each cloud on its centroid) or ``common`` (both on their joint centroid).
-    ``refine_options`` (:class:`~rpmnet_jax.pairwise.options.RefineOptions`): the ICP's sample size and
-    stopping; ``global_options`` (:class:`~rpmnet_jax.pairwise.options.GlobalOptions`): the rotation
-    hypotheses, their screening and ``auto``'s fitness bars.
+    The rest is in options objects (:mod:`rpmnet_jax.pairwise.options`): ``network_options`` what the network sees
+    (points per cloud, sampling, centring, iterations), ``refine_options`` the ICP's sample size and stopping,
+    ``global_options`` the classical hypotheses, the rotation hypotheses, their screening and ``auto``'s bars.
     Deterministic for a ``seed``.
     """
-    options_lib.check(init, refine, num_iters, max_correspondence_distance, refine_options, global_options)
+    options_lib.check(init, refine, max_correspondence_distance, network_options, refine_options, global_options)
+    net = network_options
     clock = stopwatch.Stopwatch()
     with clock.stage("prepare"):  # 1. what every later stage needs, made once
         inputs = prepare.for_alignment(
-            src_points, ref_points, src_normals, ref_normals, num_points=num_points, sampling=sampling, seed=seed,
-            reestimate_normals=reestimate_normals, centering=centering,
+            src_points, ref_points, src_normals, ref_normals, num_points=net.points, sampling=net.sampling, seed=seed,
+            reestimate_normals=reestimate_normals, centering=net.centering,
             icp=refine == "icp", dense_points=refine_options.points if (refine == "icp" or init != "local") else None,
             max_correspondence_distance=max_correspondence_distance, relative_distance=DEFAULT_RELATIVE_DISTANCE)
         free_space = _free_space(inputs)  # scans taken from their frame origins: what each sensor saw, made once
@@ -154,7 +152,7 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, checkpo
         if auto.stands(classical_answer, opts):
             return classical_answer
     if init == "local" or (init == "auto" and auto.runs("network", found, opts)):
-        found += search.local(num_iters)
+        found += search.local(net.iters)
     if init == "global" or (init == "auto" and auto.runs("global", found, opts)):
         found += search.global_search()
     # 4-5. select the distinct answers, best first; report in the caller's units, on the full clouds

@@ -1,6 +1,7 @@
 """The knobs of :func:`rpmnet_jax.align` beyond the common ones, as small frozen options objects (as Open3D's
-``ICPConvergenceCriteria``): :class:`RefineOptions` for the ICP refinement, :class:`GlobalOptions` for the
-global search. Each checks its values when it is made; :func:`check` checks the plain keywords of ``align``.
+``ICPConvergenceCriteria``): :class:`NetworkOptions` for what the network sees, :class:`RefineOptions` for the ICP
+refinement, :class:`GlobalOptions` for the starts. Each checks its values when it is made; :func:`check` checks the
+plain keywords of ``align``.
 """
 
 from __future__ import annotations
@@ -12,6 +13,29 @@ from rpmnet_jax import input_checks as checks
 INITS = ("auto", "local", "global", "classical")
 REFINES = ("icp", "none")
 HYPOTHESIS_SETS = {"icosahedral": "I", "octahedral": "O"}  # rotation groups of the global search (SciPy names)
+SAMPLINGS = ("random", "fps")
+CENTERINGS = ("separate", "common")
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkOptions:
+    """What the network sees of a pair (:func:`rpmnet_jax.pairwise.prepare.prepare_pair`) and how long it iterates.
+
+    ``points`` per cloud, drawn by ``sampling`` (``random``, or ``fps``: farthest-point); ``centering``:
+    ``separate`` (each cloud on its own centroid) or ``common`` (both on their joint centroid); ``iters``:
+    network iterations from the identity (the paper's 5).
+    """
+
+    points: int = 1024
+    iters: int = 5
+    sampling: str = "random"
+    centering: str = "separate"
+
+    def __post_init__(self):
+        checks.require_at_least("NetworkOptions.points", self.points, 3)
+        checks.require_at_least("NetworkOptions.iters", self.iters, 1)
+        checks.require_choice("NetworkOptions.sampling", self.sampling, SAMPLINGS)
+        checks.require_choice("NetworkOptions.centering", self.centering, CENTERINGS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,17 +113,17 @@ class GlobalOptions:
             checks.require_fraction(f"GlobalOptions.{name}", getattr(self, name))
 
 
-def check(init: str, refine: str, num_iters: int, max_correspondence_distance: float | None,
-          refine_options, global_options) -> None:
+def check(init: str, refine: str, max_correspondence_distance: float | None, network_options, refine_options,
+          global_options) -> None:
     """Raises ``ValueError`` for a bad plain keyword of :func:`rpmnet_jax.align` or an options object of the
     wrong type (the options objects check their own values)."""
     checks.require_choice("init", init, INITS)
     checks.require_choice("refine", refine, REFINES)
-    checks.require_at_least("num_iters", num_iters, 1)
     checks.require_positive("max_correspondence_distance", max_correspondence_distance, optional=True)
-    if not isinstance(refine_options, RefineOptions):
-        raise ValueError(f"refine_options must be a RefineOptions, got {type(refine_options).__name__}")
-    if not isinstance(global_options, GlobalOptions):
-        raise ValueError(f"global_options must be a GlobalOptions, got {type(global_options).__name__}")
+    for name, value, kind in (("network_options", network_options, NetworkOptions),
+                              ("refine_options", refine_options, RefineOptions),
+                              ("global_options", global_options, GlobalOptions)):
+        if not isinstance(value, kind):
+            raise ValueError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
     if init == "classical" and global_options.classical < 1:
         raise ValueError("init='classical' needs GlobalOptions.classical >= 1 (the hypotheses it refines)")
