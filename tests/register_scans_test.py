@@ -262,10 +262,11 @@ def test_a_stored_e57_pose_is_where_its_scanner_stood():
     pose = np.eye(4)
     pose[:3, 3] = [512_000.0, 4_100_000.0, 120.0]
     plain, seen = columns.Cloud(np.zeros((3, 3))), columns.Cloud(np.zeros((3, 3)), viewpoint=np.array([1.0, 2.0, 3.0]))
-    found = register_scans._viewpoints(register_scans._Scans(["a", "b", "c"], [plain, plain, seen],
-                                                             [np.eye(4), pose, np.eye(4)], []), "origin")
+    found = register_scans._viewpoints(register_scans._Scans(["a", "b", "c", "d"], [plain, plain, seen, plain],
+                                                             [None, pose, None, np.eye(4)], []), "origin")
     assert found[0] == "origin" and found[1].tolist() == [512_000.0, 4_100_000.0, 120.0]
     assert found[2].tolist() == [1.0, 2.0, 3.0]
+    assert found[3].tolist() == [0.0, 0.0, 0.0]  # a stored identity pose is a pose: the scanner at the origin
 
 
 def test_the_page_banner_names_doubtful_scans_and_edges_and_those_left_out():

@@ -88,8 +88,8 @@ def _scan_paths(args) -> list:
 
 
 def _read_scans(paths: list, columns) -> tuple:
-    """``(labels, clouds, stored poses (4, 4), notes)``: one scan per file, or per scan of a multi-scan E57 file
-    (label ``FILE.e57#i`` or the scan's name), moved by its stored pose when it has one."""
+    """``(labels, clouds, stored poses (4, 4) or None, notes)``: one scan per file, or per scan of a multi-scan E57
+    file (label ``FILE.e57#i`` or the scan's name), moved by its stored pose when it has one."""
     import numpy as np
 
     from rpmnet_jax.io import clouds as cloud_io, e57
@@ -100,13 +100,13 @@ def _read_scans(paths: list, columns) -> tuple:
         if len(scans) < 2:
             labels.append(path)
             clouds.append(cloud_io.read(path, columns=columns))
-            stored.append(np.eye(4))
+            stored.append(None)
             continue
         names = [s.name for s in scans]
         usable = len(set(names)) == len(names) and all(n and n.split() == [n] and "/" not in n for n in names)
         labels += [os.path.join(os.path.dirname(path), n) if usable else f"{path}#{i}" for i, n in enumerate(names)]
         clouds += [s.cloud if s.pose is None else s.cloud.moved(s.pose) for s in scans]
-        stored += [np.eye(4) if s.pose is None else s.pose for s in scans]
+        stored += [s.pose for s in scans]
         posed = sum(s.pose is not None for s in scans)
         if posed:
             notes.append(f"{os.path.basename(path)}: {posed} of {len(scans)} scans have stored poses; starting from "
@@ -125,7 +125,7 @@ def _viewpoints(scans: "_Scans", rule: str) -> list:
     the viewpoint its file gives (a PCD's ``VIEWPOINT``), else ``rule``."""
     import numpy as np
 
-    return [np.asarray(pose, np.float64)[:3, 3] if not np.array_equal(pose, np.eye(4))
+    return [np.asarray(pose, np.float64)[:3, 3] if pose is not None
             else (rule if c.viewpoint is None else c.viewpoint) for pose, c in zip(scans.stored, scans.clouds)]
 
 
@@ -179,7 +179,7 @@ def main(argv=None) -> int:
 class _Scans(typing.NamedTuple):
     names: list  # file names (a multi-scan E57's scans: their own names or FILE.e57#i)
     clouds: list  # io.columns.Cloud of each scan, in a multi-scan E57 file's frame when it has poses
-    stored: list  # (4, 4) each scan's stored pose (identity: none)
+    stored: list  # (4, 4) each scan's stored pose, or None
     notes: list  # lines to print
 
 
@@ -289,7 +289,8 @@ def _write(args, scans: _Scans, result) -> dict:
 
     placed, clouds = _placed(result, scans.names), scans.clouds
     poses_io.write_poses(args.out_poses, [scans.names[s] for s in placed],
-                         [result.poses[s] @ scans.stored[s] for s in placed])
+                         [result.poses[s] @ (np.eye(4) if scans.stored[s] is None else scans.stored[s])
+                          for s in placed])
     finite = {s: np.all(np.isfinite(clouds[s].points), axis=1) for s in placed}  # rows align_scans dropped too
     moved = {s: clouds[s].points[finite[s]] @ result.poses[s, :3, :3].T + result.poses[s, :3, 3] for s in placed}
     if not args.out_merged:
