@@ -19,6 +19,14 @@ BIN_DEG = 1.0  # direction bins of the range image
 # stations (data/rooms.py, seed 0): right answers up to 0.006, half-turned ones 0.05-0.35. Chosen between them
 # (tuning data: not held-out)
 MAX_FREE_SPACE_SHARE = 0.04
+MARGIN_CELLS = 5.0  # the margin, in cells of the voxel grid the check runs on (noise, the bins' spread): align_scans'
+# voxel (5 voxels: twice its correspondence distance), align's grid of a fifth of its correspondence distance (one
+# correspondence distance). Not compared with other values
+
+
+def margin(cell: float) -> float:
+    """The free-space margin of a check on a voxel grid of ``cell`` (caller's units)."""
+    return MARGIN_CELLS * cell
 
 
 class RangeImage(NamedTuple):

@@ -12,7 +12,6 @@ from rpmnet_jax.geometry import visibility
 from rpmnet_jax.multiway import edge_doubt
 from rpmnet_jax.pose_graphs import pose_graph
 
-FREE_SPACE_MARGIN = 2.0  # the free-space check's margin, × the correspondence distance (noise, the bins' spread)
 
 
 def screened(answers_per_pair, max_dist: float, good, reject: bool, visible=None) -> list:
@@ -28,10 +27,10 @@ def screened(answers_per_pair, max_dist: float, good, reject: bool, visible=None
     return found
 
 
-def free_space_check(scans, sensors, max_dist: float):
+def free_space_check(scans, sensors, voxel: float):
     """``visible(edge) -> bool``: whether the edge keeps each scan out of the other's free space
-    (:mod:`rpmnet_jax.geometry.visibility`, margin ``FREE_SPACE_MARGIN × max_dist``); edges between scans without
-    known sensors pass."""
+    (:mod:`rpmnet_jax.geometry.visibility`, on the scans' grid of ``voxel``); edges between scans without known
+    sensors pass."""
     images = {}
 
     def image(k):
@@ -43,7 +42,7 @@ def free_space_check(scans, sensors, max_dist: float):
         if sensors[e.source] is None or sensors[e.target] is None:
             return True
         return visibility.violation(scans[e.source].points, image(e.source), scans[e.target].points,
-                                    image(e.target), e.transform, FREE_SPACE_MARGIN * max_dist
+                                    image(e.target), e.transform, visibility.margin(voxel)
                                     ) <= visibility.MAX_FREE_SPACE_SHARE
     return visible
 

@@ -185,7 +185,7 @@ def _pair_edges(run: _Run) -> None:
         with clock.stage("classical"):
             found = edge_graph.screened(engine.classical_edges(pairs, run.tick("classical edges")), run.max_dist,
                                         lambda e: run.good(e, o.min_fitness), o.edge_doubt == "reject",
-                                        edge_graph.free_space_check(run.scans, run.prepared.sensors, run.max_dist))
+                                        edge_graph.free_space_check(run.scans, run.prepared.sensors, run.prepared.voxel))
             run.counts["classical"] = len(pairs)
             run.edges = [e for answers in found for e in answers]  # a symmetric pair's answers: the graph chooses
         labels = pose_graph.components(len(run.scans), [(e.source, e.target) for e in run.edges])

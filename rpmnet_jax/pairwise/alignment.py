@@ -67,6 +67,7 @@ from rpmnet_jax.pairwise import auto, doubt, starts as starts_lib
 from rpmnet_jax.weights import loading
 
 DEFAULT_RELATIVE_DISTANCE = 0.05  # chosen on 40 real ModelNet40 partial pairs (see above; tuning data)
+FREE_SPACE_CELL = 0.2  # the free-space check's voxel grid, × the correspondence distance (its margin: 5 cells)
 
 
 class Alignment(NamedTuple):
@@ -241,14 +242,14 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
 def _free_space(inputs: prepare.Inputs) -> tuple | None:
     """``(src grid, ref grid, their range images)`` when both clouds look taken from their frame origins by their
     spacing (:func:`rpmnet_jax.geometry.sensors.taken_from` without the surround rule, which a whole object centred
-    on its origin can meet: scanner stations, RGB-D frames, full-density sweeps), else None. On a voxel grid (space
-    weighed evenly: a scanner's dense floor around it would dilute the share), the margin and the cube as
-    align_scans' scenes have them (2 × 2.5 voxels)."""
+    on its origin can meet: scanner stations, RGB-D frames, full-density sweeps), else None. On a voxel grid of
+    ``FREE_SPACE_CELL`` (space weighed evenly: a scanner's dense floor around it would dilute the share)."""
     pair, origin = inputs.pair, np.zeros(3)
     if not (sensors.taken_from(pair.src, origin, surround=False)
             and sensors.taken_from(pair.ref, origin, surround=False, tree=inputs.ref_tree)):
         return None
-    src, ref = (sampling_lib.voxel_downsample(c, None, inputs.max_distance / 5)[0] for c in (pair.src, pair.ref))
+    cell = FREE_SPACE_CELL * inputs.max_distance
+    src, ref = (sampling_lib.voxel_downsample(c, None, cell)[0] for c in (pair.src, pair.ref))
     return src, ref, visibility.range_image(src, origin), visibility.range_image(ref, origin)
 
 
@@ -260,8 +261,9 @@ def _free_space_first(inputs: prepare.Inputs, selection: candidates_lib.Selectio
     if free_space is None:
         return selection, False
     src, ref, src_image, ref_image = free_space
+    margin = visibility.margin(FREE_SPACE_CELL * inputs.max_distance)
     clear = [visibility.violation(src, src_image, ref, ref_image, inputs.pair.to_callers_units(c.transform[:3]),
-                                  inputs.max_distance)
+                                  margin)
              <= visibility.MAX_FREE_SPACE_SHARE for c in selection.ranked]
     if clear[0] or not any(clear):
         return selection, not clear[0]
