@@ -125,3 +125,14 @@ def test_distinct_rotations_equal_a_pairwise_loop():
             want.append(i)
     got = se3.distinct_rotations(rots, 60.0)
     assert got == want and 5 < len(got) < 200
+
+
+def test_pivot_adjoint_moves_a_twist_to_a_pivot():
+    """``pivot_adjoint(c) @ (ω, v)`` moves every point as ``(ω, v)`` does, with the rotation about ``c``:
+    ``ω × x + v = ω × (x − c) + v'``; its inverse is the adjoint of ``-c``."""
+    rng = np.random.default_rng(3)
+    omega, v, c, x = rng.normal(size=(4, 3))
+    moved = se3.pivot_adjoint(c) @ np.concatenate([omega, v])
+    np.testing.assert_allclose(moved[:3], omega, atol=0)
+    np.testing.assert_allclose(np.cross(omega, x - c) + moved[3:], np.cross(omega, x) + v, atol=1e-12)
+    np.testing.assert_allclose(se3.pivot_adjoint(c) @ se3.pivot_adjoint(-c), np.eye(6), atol=1e-15)

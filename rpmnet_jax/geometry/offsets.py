@@ -45,6 +45,5 @@ def unshift_transforms(transforms: np.ndarray, shift: np.ndarray) -> np.ndarray:
 def unshift_information(information: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """``(6, 6)`` information of ``T' · Exp(ξ')`` (``ξ = (ω, v)``) in the moved frames → that of ``T · Exp(ξ)``
     in the caller's: ``ξ' = Ad(S(-shift)) ξ``, so ``Λ = Adᵀ Λ' Ad`` with ``Ad = [[I, 0], [-[shift]×, I]]``."""
-    ad = np.eye(6)
-    ad[3:, :3] = -se3.hat(np.asarray(shift, np.float64))
+    ad = se3.pivot_adjoint(shift)
     return ad.T @ information @ ad

@@ -40,8 +40,7 @@ def lever(information) -> tuple:
     cross, trans = info[:3, 3:], info[3:, 3:]  # Σ (p×m) mᵀ, Σ m mᵀ; about a pivot c the first is cross − ĉ trans
     system = np.concatenate([np.asarray(se3.hat(trans[:, k])) for k in range(3)])  # (9, 3): ĉ C[:, k] = −Ĉ[:, k] c
     centre = np.linalg.lstsq(system, -cross.T.reshape(-1), rcond=None)[0]
-    b = np.eye(6)
-    b[3:, :3] = -np.asarray(se3.hat(centre))
+    b = se3.pivot_adjoint(centre)
     b_inv = np.linalg.inv(b)
     rotation = (b_inv.T @ info @ b_inv)[:3, :3]
     t = np.trace(trans)

@@ -67,6 +67,15 @@ def hat(omega):
     return xp.stack([xp.stack([zero, -z, y], -1), xp.stack([z, zero, -x], -1), xp.stack([-y, x, zero], -1)], -2)
 
 
+def pivot_adjoint(centre) -> np.ndarray:
+    """``(6, 6)`` ``[[I, 0], [-[c]×, I]]`` (NumPy, float64): the twist ``(ω, v)`` about the origin as a twist about
+    ``centre (3,)`` (``v' = v + ω × c``), the adjoint of a translation by ``-c``; an information matrix moves as
+    ``Bᵀ Λ B``."""
+    b = np.eye(6)
+    b[3:, :3] = -np.asarray(hat(np.asarray(centre, np.float64)))
+    return b
+
+
 def exp(twist):
     """SE(3) exponential of twists ``twist (*, 6) = (ω, v)`` (rotation first, as GTSAM's ``Pose3``) →
     ``(*, 3, 4)`` ``[R | V v]``: the matrix exponential of ``[[hat(ω), v], [0, 0]]``.

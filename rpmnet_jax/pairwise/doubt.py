@@ -57,8 +57,7 @@ def conditioning(information, centre, radius) -> tuple:
     with rotations scaled by ``radius`` (so both blocks are in length units), and of its rotation and translation
     blocks: near -12 where the fit slides along itself (a plane, a sphere, a surface of revolution)."""
     info = np.asarray(information, np.float64)
-    b = np.eye(6)  # ξ' = B ξ moves the rotation's pivot to the centre: v' = v + ω × c
-    b[3:, :3] = -np.asarray(se3.hat(np.asarray(centre, np.float64)))
+    b = se3.pivot_adjoint(centre)  # ξ' = B ξ moves the rotation's pivot to the centre: v' = v + ω × c
     b_inv = np.linalg.inv(b)
     centred = b_inv.T @ info @ b_inv
     s = np.diag([1.0 / radius] * 3 + [1.0] * 3)
