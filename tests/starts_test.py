@@ -40,8 +40,8 @@ def test_dense_clouds_take_their_hypotheses_from_a_voxel_grid(monkeypatch, dense
     rot, t = rotation_about([0.3, -1.0, 0.6], 100.0), np.array([0.5, -0.2, 1.0])
     pair = prepare.prepare_pair(pts[::2], pts[1::2] @ rot.T + t, nrm[::2], nrm[1::2] @ rot.T, num_points=256)
     grids = []
-    grid = starts._voxel_grid
-    monkeypatch.setattr(starts, "_voxel_grid", lambda *a: grids.append(grid(*a)) or grids[-1])
+    made = starts._voxel_grids
+    monkeypatch.setattr(starts, "_voxel_grids", lambda *a: grids.extend(made(*a)[0]) or made(*a))
     found = starts.classical_starts(pair, 4, seed=0)
     assert len(grids) == (2 if dense else 0)
     if dense:  # one point per occupied cube: far fewer than the cloud, far more than the samples
@@ -50,16 +50,33 @@ def test_dense_clouds_take_their_hypotheses_from_a_voxel_grid(monkeypatch, dense
     assert rotation_error_deg(best[:3, :3], rot) < 10.0
 
 
-def test_a_large_grid_is_sampled_down(monkeypatch):
-    """Beyond GRID_POINTS cubes a seeded sample of them is kept (feature matching compares every pair)."""
+def test_a_large_grid_is_a_coarser_grid(monkeypatch):
+    """Beyond GRID_POINTS cubes the grid coarsens (feature matching compares every pair) and stays even: at most
+    that many points, one per coarser cube, none closer than the fine cube, the same cube for both clouds; the
+    FPFH radius and RANSAC's distance follow the cube."""
     pts, nrm = asymmetric_shape(1, 12000)
     pair = prepare.prepare_pair(pts[::2], pts[1::2], nrm[::2], nrm[1::2], num_points=256)
-    full = starts._voxel_grid(pair, "src", 0)[0]
+    (full, _), voxel = starts._voxel_grids(pair)
+    assert voxel == starts.VOXEL and len(full[0]) > 500
     monkeypatch.setattr(starts, "GRID_POINTS", 500)
-    few = starts._voxel_grid(pair, "src", 0)[0]
-    assert len(full) > 500 and len(few) == 500
-    assert (few[:, None] == full[None]).all(-1).any(1).all()  # rows of the grid
-    np.testing.assert_array_equal(few, starts._voxel_grid(pair, "src", 0)[0])  # seeded
+    grids, voxel = starts._voxel_grids(pair)
+    assert voxel > starts.VOXEL and all(500 >= len(g) > 250 and n.shape == g.shape for g, n in grids)
+    coarse = grids[0][0]
+    gaps = np.linalg.norm(coarse[:, None] - coarse[None], axis=-1) + np.eye(len(coarse)) * 9
+    assert gaps.min() > 0.5 * starts.VOXEL  # one point per coarse cube: no two share a fine one
+    seen = {}
+
+    class Seen(Exception):
+        pass
+
+    def from_clouds(*args, **kwargs):
+        seen.update(kwargs)
+        raise Seen
+
+    monkeypatch.setattr(starts.feature_ransac, "from_clouds", from_clouds)
+    with pytest.raises(Seen):
+        starts.classical_starts(pair, 4, seed=0)
+    assert seen["radius"] == 5 * voxel and seen["max_distance"] == 1.5 * voxel
 
 
 def test_identity_start():
