@@ -214,14 +214,23 @@ def test_a_task_that_kills_its_workers_is_named_in_one_line(monkeypatch):
     class Future:
         key = "classical-pair-0-1"
 
-        def result(self):
+        def result(self, timeout=None):
             raise distributed.KilledWorker(self.key, "tcp://127.0.0.1:1", 3)
 
     class Client:
         def submit(self, fn, scans, *args, **kwargs):
             return Future()
 
-    monkeypatch.setattr(distributed, "as_completed", lambda futures: iter(futures))
+    class Finished(list):  # distributed.as_completed with every future back
+        def is_empty(self):
+            return not self
+
+        def next_batch(self, block=True):
+            batch = self[:]
+            self.clear()
+            return batch
+
+    monkeypatch.setattr(distributed, "as_completed", Finished)
     engine = pair_engine.PairEngine()
     engine.client, engine._scan_futures = Client(), {0: None, 1: None}
     with pytest.raises(pair_engine.PairTaskError, match=r"the task of pairs \[\(0, 1\)\] killed the Dask workers"):

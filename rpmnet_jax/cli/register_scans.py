@@ -10,7 +10,9 @@ An E57 file with several scans is a scan set: each scan is named by its own name
 and have no spaces) or ``FILE.e57#i``; scans with stored poses start from them (each moved into the file's
 frame first), and the poses written are then scan -> the file's frame, the first scan keeping its stored pose.
 
-Exit codes: 0 success, 2 bad input or arguments (one-line message, nothing written).
+Exit codes: 0 success, 1 a Dask run that cannot finish (a pair task that kills the workers running it, or no
+worker left for a minute: one line; ``--cache`` keeps the pairs that finished), 2 bad input or arguments (one-line
+message, nothing written).
 """
 
 from __future__ import annotations
@@ -143,7 +145,7 @@ def _engine(args) -> tuple:
 
 def main(argv=None) -> int:
     """Read → align → write → report; ``0``, or ``2`` (bad input: one line, nothing written), ``1`` (a pair task
-    that kills its workers)."""
+    that kills its workers, or no Dask worker left)."""
     args = _parser().parse_args(argv)
     from rpmnet_jax import stopwatch
     from rpmnet_jax.pair_edges import pair_engine
@@ -157,7 +159,7 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as e:  # bad input, or a file that is missing, a folder, or unreadable
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
-    except pair_engine.PairTaskError as e:  # a pair that kills the workers running it
+    except pair_engine.PairTaskError as e:  # a pair that kills the workers running it, or no worker left
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 1
     _say(scans, result, caught, clock.elapsed(), t_read)

@@ -6,14 +6,25 @@ Tasks are pure functions of the scans, the pairs, the settings and the seed: a p
 from its own generator, seeded by ``(seed, stage, i, j)``, so its edge does not depend on which worker ran it,
 in what order, or whether it ran again after a worker died. Network edges run in fixed chunks of
 ``batch_size`` pairs (one batched network call each; a chunk's composition depends only on the pair list),
-refinement edges one pair a task. The scans and the network's parameters are sent to every worker once;
-each worker compiles the network once per process (through JAX's persistent compilation cache when this
-process has one). Results are collected as they finish; the pose graph stays with the caller.
+refinement edges one pair a task. The scans and the network's parameters go to the cluster once, as tasks
+that unpickle them (made again if a worker dies with them); a worker fetches those its tasks need and compiles
+the network once per process (through JAX's persistent compilation cache when this process has one). Results
+are collected as they finish; the pose graph stays with the caller.
+
+Faults: a worker that dies mid-run loses only its running tasks and the results not yet fetched from it; the
+scheduler runs them again on the other workers, and as the edges do not depend on where they ran, the poses are the
+same. A task that kills every worker running it stops the run with one line naming its pairs
+(:class:`PairTaskError`); a scheduler left with no worker for :data:`NO_WORKERS_TIMEOUT` seconds stops it with one
+line too (:class:`NoWorkersError`), the cache keeping what finished. An embedded cluster's workers size Numba's,
+BLAS's and XLA's thread pools to their own thread (:func:`worker_environment`): one worker a core, not every pool
+on every core.
 """
 
 from __future__ import annotations
 
 import os
+import pickle
+import time
 from typing import NamedTuple
 
 import numpy as np
@@ -23,6 +34,10 @@ from rpmnet_jax.geometry import threads
 from rpmnet_jax.pair_edges import edges as edges_lib, pair_cache
 
 CONNECT_TIMEOUT = "20s"  # waiting for a scheduler that does not answer
+NO_WORKERS_TIMEOUT = 60.0  # seconds a scheduler may have no worker before a run stops (NoWorkersError)
+WORKERS_POLL = 1.0  # seconds between asking the scheduler for its workers while no result comes
+RESULT_TIMEOUT = 10.0  # seconds to fetch a finished result; past it (its worker died) it is awaited again
+THREADS_PER_WORKER = 1  # an embedded cluster's worker: one task at a time, every pool it uses this size
 NETWORK_TAG, CLASSICAL_TAG = 0, 1  # a pair's generator: (seed, tag, i, j); refinement round r: (seed, 2 + r, i, j)
 _PARAMS = object()  # stands for the network's parameters among a task's arguments (sent once, not per task)
 
@@ -102,6 +117,25 @@ def _use_compile_cache(folder) -> None:
     jax.config.update("jax_compilation_cache_dir", folder)
 
 
+def worker_environment(nthreads: int) -> dict:
+    """Environment variables that size a worker process's thread pools to its ``nthreads``: Numba's (read when
+    Numba is imported), BLAS's (OpenBLAS, MKL, OpenMP: read when a library loads) and XLA's CPU pool
+    (``PJRT_NPROC``: read when JAX first runs). An embedded cluster's workers get them as they start; give them to
+    ``dask worker`` processes too (e.g. ``NUMBA_NUM_THREADS=1 PJRT_NPROC=1 ... dask worker --nthreads 1``)."""
+    n = str(int(nthreads))
+    return {name: n for name in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                                 "PJRT_NPROC")}
+
+
+def dask_setup(worker) -> None:
+    """Run by Dask in each worker of an embedded cluster as it starts (this module is its preload): the BLAS
+    libraries loaded before :func:`worker_environment` applied (NumPy's: Dask imports it first) limited to the
+    worker's threads too."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=worker.state.nthreads, user_api="blas")  # not as a context: it stays
+
+
 def check_scheduler(scheduler):
     """``scheduler`` if usable: ``None`` (this process), ``"local"`` or a worker count ``n ≥ 1`` (an embedded
     ``LocalCluster``), a scheduler address ``"tcp://HOST:PORT"`` (any ``scheme://``), or a
@@ -126,6 +160,11 @@ class PairTaskError(RuntimeError):
     pairs in one line."""
 
 
+class NoWorkersError(PairTaskError):
+    """The Dask scheduler has had no worker for :data:`NO_WORKERS_TIMEOUT` seconds while pair tasks wait; the
+    message, one line, says what the cache kept."""
+
+
 class PairEngine:
     """Runs pair tasks on ``scheduler`` (see :func:`check_scheduler`), keeping results in ``cache`` (a folder or
     a :class:`~rpmnet_jax.pair_edges.pair_cache.PairCache`; ``None``: none). A context manager: leaving it
@@ -147,8 +186,9 @@ class PairEngine:
         self._own_client = True
         if isinstance(self.scheduler, int) or self.scheduler == "local":
             workers = self.scheduler if isinstance(self.scheduler, int) else None
-            self._cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                                     dashboard_address=None)
+            self._cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=THREADS_PER_WORKER,
+                                                     processes=True, dashboard_address=None, preload=[__name__],
+                                                     env=worker_environment(THREADS_PER_WORKER))
             self.client = distributed.Client(self._cluster)
             return self
         try:
@@ -166,13 +206,13 @@ class PairEngine:
 
     def bind(self, scans, params, cfg, settings: Settings) -> None:
         """The scans (:class:`~rpmnet_jax.pair_edges.edges.Scan`), network (``params``; ``None``: the shipped
-        model, loaded when the network first runs) and settings of the coming tasks; the scans are sent to every
-        worker here, once (the network's parameters when it first runs)."""
+        model, loaded when the network first runs) and settings of the coming tasks; the scans are sent to the
+        cluster here, once (the network's parameters when it first runs: :meth:`_send`)."""
         self.scans, self.params, self.cfg, self.settings = scans, params, cfg, settings
         self._digests = [pair_cache.scan_digest(s) for s in scans] if self.cache is not None else None
         self._params_digest = None
         if self.client is not None:
-            self._scan_futures = self.client.scatter(list(scans), broadcast=True)
+            self._scan_futures = self._send(list(scans))
 
     def _bind_network(self) -> None:
         """Loads the shipped model if no parameters were given, digests them for the cache, sends them to the
@@ -186,8 +226,17 @@ class PairEngine:
         if self.client is not None and self._params_future is None:
             import jax
 
-            self._params_future = self.client.scatter([jax.tree.map(np.asarray, self.params)], broadcast=True)[0]
+            self._params_future = self._send([jax.tree.map(np.asarray, self.params)])[0]
             self._compile_cache = jax.config.jax_compilation_cache_dir or None
+
+    def _send(self, values: list) -> list:
+        """Futures of ``values``: tasks that unpickle them, their bytes kept by the scheduler, so that a copy lost
+        with its worker is made again elsewhere. Scattered data is not: the scheduler's memory manager drops the
+        replicas a broadcast made, and a worker that died with a scan's only copy stopped the run."""
+        import dask
+
+        with dask.config.set({"distributed.admin.large-graph-warning-threshold": "64GB"}):  # meant to be there
+            return [self.client.submit(pickle.loads, pickle.dumps(v, protocol=5), pure=False) for v in values]
 
     def network_edges(self, pairs, tick=None) -> list:
         """Network edges (network + short ICP) of ``pairs [(i, j), ...]``, one per pair, in that order;
@@ -277,13 +326,52 @@ class PairEngine:
                 extra = {"compile_cache": self._compile_cache} if fn is network_chunk else {}
                 futures.append(self.client.submit(fn, scans, *args, pure=True, **extra))
                 needed[futures[-1].key] = needs
-            for future in distributed.as_completed(futures):
-                try:
-                    new = future.result()
-                except distributed.KilledWorker as e:  # the scheduler gave up on it: name the pairs, one line
-                    raise PairTaskError(f"the task of pairs {[tuple(p) for p in needed[future.key]]} killed the Dask "
-                                        "workers that ran it; the pairs finished before it are in the cache (if "
-                                        "any)") from e
-                finished(new)
-                advance(len(new))
+            results, workers = distributed.as_completed(futures), _Workers(self.client)
+            while not results.is_empty():
+                batch = results.next_batch(block=False)
+                if not batch:  # none finished: is there still a worker to run them?
+                    if workers.gone_for() >= NO_WORKERS_TIMEOUT:
+                        raise NoWorkersError(self._no_workers(total - done[0], total))
+                    time.sleep(0.02)  # as_completed's own wait polls every 0.1 s
+                for future in batch:
+                    try:
+                        new = future.result(timeout=RESULT_TIMEOUT)
+                    except distributed.KilledWorker as e:  # the scheduler gave up on it: name the pairs, one line
+                        raise PairTaskError(f"the task of pairs {[tuple(p) for p in needed[future.key]]} killed the "
+                                            "Dask workers that ran it; the pairs finished before it are in the cache "
+                                            "(if any)") from e
+                    except distributed.TimeoutError:  # its result died with its worker: it runs again elsewhere
+                        results.add(future)
+                        continue
+                    finished(new)
+                    advance(len(new))
         return [edges[tuple(p)] for p in pairs]
+
+    def _no_workers(self, left: int, total: int) -> str:
+        """The one line of a run stopped for want of workers."""
+        kept = ("the cache keeps the pairs that finished: the same command resumes from them once workers are there"
+                if self.cache is not None else "no cache was given, so none of the finished pairs is kept")
+        return (f"no Dask workers at {self.client.scheduler.address} for {NO_WORKERS_TIMEOUT:g} s, {left} of {total} "
+                f"pairs of this stage still to run; {kept}")
+
+
+class _Workers:
+    """How long a Dask scheduler has had no worker (asked at most every :data:`WORKERS_POLL` seconds; a scheduler
+    that does not answer has none)."""
+
+    def __init__(self, client):
+        self.client, self.asked, self.none_since = client, -float("inf"), None
+
+    def gone_for(self) -> float:
+        """Seconds since the scheduler was first seen without a worker (``0``: it has some)."""
+        import distributed
+
+        now = time.monotonic()
+        if now - self.asked >= WORKERS_POLL:
+            self.asked = now
+            try:
+                count = len(self.client.nthreads(callback_timeout=WORKERS_POLL * 5))
+            except (OSError, distributed.TimeoutError):
+                count = 0
+            self.none_since = None if count else (now if self.none_since is None else self.none_since)
+        return 0.0 if self.none_since is None else now - self.none_since

@@ -1,0 +1,209 @@
+"""Faults on a real Dask cluster (a ``dask scheduler`` and ``dask worker`` processes started here, small synthetic
+scans): every worker killed mid-run stops ``rpmnet-register-scans`` with one line (exit 1) within the timeout, the
+cache keeping what finished, and the same command resumes once a worker is back; a scheduler without workers stops
+it the same way; one of two workers killed mid-run gives the in-process poses; an embedded cluster's worker sizes Numba's,
+BLAS's and XLA's threads to its one thread. Each kill happens when the first pair result is back (in the progress
+callback), not after a guessed sleep."""
+
+import collections
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import rpmnet_jax
+from conftest import ring_scans, rotation_error_deg
+from rpmnet_jax.cli import register_scans
+from rpmnet_jax.io import clouds as cloud_io
+from rpmnet_jax.pair_edges import pair_engine
+
+distributed = pytest.importorskip("distributed")
+
+OPTIONS = rpmnet_jax.ScanOptions(num_points=64, num_iters=2, batch_size=2, refine_points=500)  # small: seconds
+STAGE = "classical edges"  # the pair stage of five ring scans: ten pair tasks, none of them through the network
+
+
+class Cluster:
+    """A ``dask scheduler`` process and the ``dask worker`` processes added to it (one thread each, sized so, no
+    nanny: a SIGKILLed worker stays dead). The scheduler's memory manager, which drops the copies of data that no
+    two workers need, runs every 20 ms (2 s by default): as deep into a long run, spare copies are gone when a
+    worker is killed (a scattered scan's only copy could go with it)."""
+
+    def __init__(self, folder):
+        self.bin = os.path.dirname(sys.executable)
+        self.env = dict(os.environ, JAX_PLATFORMS="cpu", **pair_engine.worker_environment(1))
+        self.file = folder / "scheduler.json"
+        self.scheduler = subprocess.Popen(
+            [os.path.join(self.bin, "dask"), "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+             "--scheduler-file", str(self.file)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            env=dict(self.env, DASK_DISTRIBUTED__SCHEDULER__ACTIVE_MEMORY_MANAGER__INTERVAL="20ms"))
+        self.workers = []
+        try:
+            deadline = time.time() + 60
+            while not self.file.exists() and time.time() < deadline:
+                assert self.scheduler.poll() is None, "the scheduler ended"
+                time.sleep(0.1)
+            time.sleep(0.2)  # the file is written whole, then read
+            self.address = json.loads(self.file.read_text())["address"]
+        except BaseException:
+            self.close()
+            raise
+
+    def add_workers(self, count: int) -> list:
+        """Starts ``count`` more workers and waits until the scheduler has them all; returns them."""
+        new = [subprocess.Popen([os.path.join(self.bin, "dask"), "worker", "--nthreads", "1", "--no-nanny",
+                                 "--no-dashboard", "--name", f"w{len(self.workers) + k}", "--scheduler-file",
+                                 str(self.file)], env=self.env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+               for k in range(count)]
+        self.workers += new
+        alive = sum(w.poll() is None for w in self.workers)
+        with distributed.Client(self.address, timeout="30s") as client:
+            client.wait_for_workers(alive, timeout=120)
+        return new
+
+    def close(self) -> None:  # the workers hold nothing worth a clean shutdown
+        for p in [*self.workers, self.scheduler]:
+            if p.poll() is None:
+                p.kill()
+            p.wait(timeout=30)
+
+
+@pytest.fixture
+def cluster(tmp_path):
+    c = Cluster(tmp_path)
+    try:
+        yield c
+    finally:
+        c.close()
+
+
+def _write_scans(folder, count: int = 5) -> list:
+    clouds, _ = ring_scans(count)
+    paths = [str(folder / f"scan{k}.npy") for k in range(count)]
+    for path, cloud in zip(paths, clouds):
+        cloud_io.write_cloud(path, cloud)
+    return paths
+
+
+def _kill(workers) -> None:
+    for w in workers:
+        w.send_signal(signal.SIGKILL)
+    for w in workers:
+        assert w.wait(timeout=30) == -signal.SIGKILL
+
+
+def test_every_worker_gone_stops_in_one_line_the_cache_keeps_what_finished_and_the_command_resumes(
+        cluster, tmp_path, capsys, monkeypatch, random_weights):
+    monkeypatch.setattr(pair_engine, "NO_WORKERS_TIMEOUT", 3.0)  # 60 s by default
+    monkeypatch.setattr(pair_engine, "RESULT_TIMEOUT", 2.0)
+    workers = cluster.add_workers(2)
+    cache = tmp_path / "cache"
+    command = _write_scans(tmp_path) + ["--checkpoint", random_weights, "--scheduler", cluster.address, "--cache",
+                                        str(cache), "--refine", "none", "--out-poses", str(tmp_path / "poses.conf")]
+    reports, killed = [], []
+
+    class KillingBars:  # the CLI's progress bars: both workers killed when the first pair result is back
+        def __init__(self, quiet=False):
+            pass
+
+        def __call__(self, stage, done, total):
+            reports.append((stage, done, total))
+            if stage == STAGE and not killed:
+                _kill(workers)
+                killed.append(time.monotonic())
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(register_scans.runtime, "ProgressBars", KillingBars)
+    rc = register_scans.main(command)
+    waited = time.monotonic() - killed[0]
+    err = capsys.readouterr().err
+    kept = [f for f in os.listdir(cache) if f.endswith(".npz")]
+    summary = (f"killed both workers at {reports[0][1]} of {reports[0][2]} pairs; stopped {waited:.1f} s later with "
+               f"{len(kept)} results kept: {err.strip()}")
+    assert rc == 1 and len(err.strip().splitlines()) == 1, err
+    assert re.search(rf"no Dask workers at {cluster.address} for 3 s, \d of 10 pairs of this stage still to run; "
+                     "the cache keeps the pairs that finished: the same command resumes", err), err
+    assert 3 <= waited < 20  # the timeout, not a hang
+    finished = [done for stage, done, _ in reports if stage == STAGE][-1]
+    assert 1 <= len(kept) == finished < 10 and not (tmp_path / "poses.conf").exists()
+
+    cluster.add_workers(1)  # the same command, a worker back: only the pairs left run
+    monkeypatch.undo()
+    rc = register_scans.main(command)
+    out = capsys.readouterr().out
+    print(summary)  # after capsys' last read
+    assert rc == 0 and (tmp_path / "poses.conf").exists()
+    assert f"{len(kept)} pair results reused, {10 - len(kept)} computed" in out, out
+
+
+def test_a_scheduler_without_workers_stops_in_one_line_within_the_timeout(cluster, tmp_path, capsys, monkeypatch,
+                                                                         random_weights):
+    monkeypatch.setattr(pair_engine, "NO_WORKERS_TIMEOUT", 2.0)
+    start = time.monotonic()
+    rc = register_scans.main(_write_scans(tmp_path, 3) + ["--checkpoint", random_weights, "--scheduler",
+                                                          cluster.address, "--out-poses", str(tmp_path / "p.conf")])
+    waited, err = time.monotonic() - start, capsys.readouterr().err
+    assert rc == 1 and len(err.strip().splitlines()) == 1, err
+    assert f"no Dask workers at {cluster.address} for 2 s, 3 of 3 pairs of this stage still to run; no cache" in err
+    assert 2 <= waited < 15  # the timeout, not a hang
+    assert not (tmp_path / "p.conf").exists()
+
+
+def test_a_worker_killed_mid_run_gives_the_in_process_poses(cluster, random_weights):
+    workers = cluster.add_workers(2)
+    clouds, _ = ring_scans(5)
+    expected = rpmnet_jax.align_scans(clouds, options=OPTIONS, checkpoint=random_weights)
+    killed = []
+
+    def progress(stage, done, total):  # the first pair is back, nine are running or queued
+        if stage == STAGE and not killed:
+            _kill(workers[1:])
+            killed.append(done)
+
+    result = rpmnet_jax.align_scans(clouds, options=OPTIONS, checkpoint=random_weights, scheduler=cluster.address,
+                                    progress=progress)
+    print(f"worker killed after {killed[0]} of 10 pairs")
+    assert killed == [1]
+    with distributed.Client(cluster.address, timeout="30s") as client:
+        assert list(client.nthreads().values()) == [1]  # the run finished on the other worker
+    assert np.array_equal(np.isnan(result.poses[:, 0, 0]), np.isnan(expected.poses[:, 0, 0]))
+    for a, b in zip(result.poses, expected.poses):
+        if np.isfinite(a[0, 0]):
+            assert rotation_error_deg(a[:3, :3], b[:3, :3]) < 0.01
+            assert np.linalg.norm(a[:3, 3] - b[:3, 3]) < 1e-6
+    assert [(e.source, e.target) for e in result.edges] == [(e.source, e.target) for e in expected.edges]
+
+
+def _thread_counts(dask_worker) -> dict:
+    """In a worker (``client.run``): its threads, and the sizes of the pools its tasks use."""
+    import jax
+    import numba
+    import threadpoolctl
+
+    from rpmnet_jax.geometry import threads
+
+    cpu = jax.devices("cpu")[0]
+    jax.jit(lambda a: a @ a)(jax.device_put(np.ones((64, 64), np.float32), cpu)).block_until_ready()  # XLA's pool
+    names = collections.Counter(open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task"))
+    return {"nthreads": dask_worker.state.nthreads, "numba": numba.config.NUMBA_NUM_THREADS,
+            "numba in a task": threads.start_pool(),
+            "blas": sorted({p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"}),
+            "xla": sum(n for name, n in names.items() if "XLAEigen" in name)}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="counts threads in /proc")
+def test_an_embedded_cluster_s_worker_sizes_numba_blas_and_xla_to_its_thread(monkeypatch):
+    for name in pair_engine.worker_environment(1):  # a shell asking for two threads a pool: the workers still get one
+        monkeypatch.setenv(name, "2")
+    with pair_engine.PairEngine(1) as engine:
+        counts = list(engine.client.run(_thread_counts).values())
+    print(f"threads in the worker: {counts}")
+    assert counts == [{"nthreads": 1, "numba": 1, "numba in a task": 1, "blas": [1], "xla": 1}]
