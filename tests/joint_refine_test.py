@@ -1,5 +1,6 @@
 """Joint multi-view refinement: poses a degree and millimetres off come back to the truth, the anchor and the scans in
-no pair stay where they are, and it beats the pose-graph refinement on noisy scans."""
+no pair stay where they are, it beats the pose-graph refinement on noisy scans, and its sparse normal equations (only
+the pairs' blocks) give the dense solve's step."""
 
 import itertools
 
@@ -66,3 +67,53 @@ def test_noisy_scans_end_closer_than_the_pose_graph_of_icp_edges():
     print("joint", a.max(0), "icp", b.max(0))
     assert {e.stage for e in joint.edges} == {"joint"}
     assert a[:, 1].max() < b[:, 1].max()  # the worst scan's RMS displacement
+
+
+def _dense_step(blocks, g, used, num_scans):
+    """The reference: the whole ``(6S, 6S)`` matrix of ``blocks``, cut to ``used``, damped, solved densely."""
+    h = np.zeros((num_scans, num_scans, 6, 6))
+    for (i, j), block in blocks.items():
+        h[i, j] = block
+    h = h.transpose(0, 2, 1, 3).reshape(6 * num_scans, 6 * num_scans)
+    cols = np.concatenate([np.arange(6 * s, 6 * s + 6) for s in used])
+    a = h[np.ix_(cols, cols)]
+    a[np.diag_indices_from(a)] += joint_refine.DAMPING * max(np.trace(a) / len(a), 1e-12)
+    return np.linalg.solve(a, -g.reshape(-1)[cols]).reshape(-1, 6)
+
+
+def test_the_sparse_step_is_the_dense_solve_of_the_same_blocks():
+    rng = np.random.default_rng(0)
+    num_scans, anchor = 9, 2
+    pairs = [(0, 1), (1, 2), (2, 3), (3, 4), (4, 0), (1, 3), (6, 7)]  # scans 5 and 8 in no pair; 6-7 apart
+    blocks = {}
+    for a, b in pairs:
+        for i, j in ((a, b), (b, a)):
+            ji, jj = rng.normal(size=(2, 40, 6))  # d r / d (ω, v) of scans i and j
+            w = rng.uniform(0.1, 1.0, 40)
+            for key, block in (((i, i), ji.T @ (ji * w[:, None])), ((j, j), jj.T @ (jj * w[:, None])),
+                               ((i, j), ji.T @ (jj * w[:, None])), ((j, i), jj.T @ (ji * w[:, None]))):
+                blocks[key] = blocks.get(key, 0) + block
+    g = rng.normal(size=(num_scans, 6))
+    used = sorted({s for p in pairs for s in p} - {anchor})
+    sparse_step = joint_refine._twists(blocks, g, used)
+    dense_step = _dense_step(blocks, g, used, num_scans)
+    assert sparse_step.shape == (len(used), 6)
+    np.testing.assert_allclose(sparse_step, dense_step, rtol=0, atol=1e-10 * np.abs(dense_step).max())
+
+
+def test_the_normal_equations_hold_only_the_pairs_blocks():
+    clouds, truth = ring_scans(5)
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
+    pairs = [(0, 1), (1, 2), (2, 3)]  # scan 4 in none
+    start = _perturbed(truth, 1.0, 0.001, seed=2)
+    directed, rows = joint_refine._samples(scans, pairs, 200, seed=0)
+    centre = np.mean([p[:3, 3] for p in start], axis=0)
+    blocks, g, residuals = joint_refine._normal_equations(scans, start, directed, rows, centre,
+                                                          sizes.DISTANCE_VOXELS * voxel)
+    assert set(blocks) == {(s, s) for s in range(4)} | {(i, j) for a, b in pairs for i, j in ((a, b), (b, a))}
+    assert g.shape == (5, 6) and len(residuals) > 0
+    for (i, j), block in blocks.items():
+        np.testing.assert_allclose(block, blocks[j, i].T, rtol=0, atol=1e-12 * np.abs(block).max())
+    dense_step = _dense_step(blocks, g, [1, 2, 3], 5)
+    np.testing.assert_allclose(joint_refine._twists(blocks, g, [1, 2, 3]), dense_step, rtol=0,
+                               atol=1e-10 * np.abs(dense_step).max())

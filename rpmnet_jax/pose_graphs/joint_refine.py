@@ -13,6 +13,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse import linalg as sparse_linalg
 
 from rpmnet_jax.classical import icp
 from rpmnet_jax.geometry import sampling
@@ -43,11 +45,12 @@ def _samples(scans, pairs, num_points, seed):
 
 
 def _normal_equations(scans, poses, directed, rows, centre, gate):
-    """``(H (6S, 6S), g (6S,), residuals (C,))`` of the Tukey-weighted point-to-plane residuals of every directed
-    pair at ``poses``, gate ``gate`` (left twists about ``centre``)."""
-    num_scans = len(scans)
-    h = np.zeros((num_scans, num_scans, 6, 6))
-    g = np.zeros((num_scans, 6))
+    """``(blocks, g (S, 6), residuals (C,))`` of the Tukey-weighted point-to-plane residuals of every directed
+    pair at ``poses``, gate ``gate`` (left twists about ``centre``): ``blocks`` maps ``(i, j)`` to the ``(6, 6)``
+    block of the normal equations' matrix at scans ``i, j``, held only where it can be non-zero (the diagonal of
+    the scans in a pair and both orders of each pair): O(pairs) memory, not O(S²)."""
+    blocks = {}
+    g = np.zeros((len(scans), 6))
     residuals = []
     for (i, j), sample in zip(directed, rows):
         x = se3.apply(poses[i], scans[i].points[sample])  # (M, 3) in the common frame
@@ -64,15 +67,39 @@ def _normal_equations(scans, poses, directed, rows, centre, gate):
         ji = np.concatenate([np.cross(x, n), n], axis=1)  # d r / d (ω_i, v_i)
         jj = np.concatenate([np.cross(n, x - q) - np.cross(q, n), -n], axis=1)  # d r / d (ω_j, v_j)
         wi, wj = ji * w[:, None], jj * w[:, None]
-        h[i, i] += ji.T @ wi
-        h[j, j] += jj.T @ wj
-        h[i, j] += ji.T @ wj
-        h[j, i] += jj.T @ wi
+        for key, block in (((i, i), ji.T @ wi), ((j, j), jj.T @ wj), ((i, j), ji.T @ wj), ((j, i), jj.T @ wi)):
+            blocks[key] = blocks[key] + block if key in blocks else block
         g[i] += wi.T @ r
         g[j] += wj.T @ r
         residuals.append(r)
     residuals = np.concatenate(residuals) if residuals else np.zeros(0)
-    return h.transpose(0, 2, 1, 3).reshape(6 * num_scans, 6 * num_scans), g.reshape(-1), residuals
+    return blocks, g, residuals
+
+
+def _twists(blocks, g, used):
+    """``(U, 6)``: the damped Gauss–Newton step ``(ω, v)`` of the scans ``used`` (the others held), from
+    :func:`_normal_equations`' ``blocks`` and ``g (S, 6)``: the normal equations of ``used`` as a sparse
+    ``(6U, 6U)`` matrix, Levenberg's ``DAMPING`` × their mean diagonal added, solved by sparse LU."""
+    position = {s: k for k, s in enumerate(used)}
+    kept = [(position[i], position[j], b) for (i, j), b in blocks.items() if i in position and j in position]
+    size = 6 * len(used)
+    a = _block_matrix(kept, size)
+    damping = DAMPING * max(float(a.diagonal().sum()) / size, 1e-12)
+    a = (a + damping * sparse.eye_array(size, format="csc")).tocsc()
+    return sparse_linalg.splu(a).solve(-g[used].reshape(-1)).reshape(-1, 6)
+
+
+def _block_matrix(blocks, size):
+    """``(size, size)`` CSC matrix of ``blocks [(row, col, (6, 6)), ...]`` at block row ``row``, block column
+    ``col``."""
+    if not blocks:
+        return sparse.csc_array((size, size))
+    r, c, values = zip(*blocks)
+    within = np.arange(6)
+    shape = (len(values), 6, 6)
+    rows = np.broadcast_to(6 * np.array(r)[:, None, None] + within[:, None], shape)
+    cols = np.broadcast_to(6 * np.array(c)[:, None, None] + within, shape)
+    return sparse.coo_array((np.stack(values).ravel(), (rows.ravel(), cols.ravel())), shape=(size, size)).tocsc()
 
 
 def _step(twist, centre):
@@ -98,7 +125,6 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
         return Refinement(poses, 0, True)
     directed, rows = _samples(scans, pairs, num_points, seed)
     used = sorted({s for p in pairs for s in p} - {anchor})
-    cols = np.concatenate([np.arange(6 * s, 6 * s + 6) for s in used])
     placed = np.concatenate([se3.apply(poses[s], scans[s].points[:: max(1, len(scans[s].points) // 200)])
                              for s in sorted({s for p in pairs for s in p})])
     centre = placed.mean(axis=0)
@@ -109,13 +135,11 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
         for _ in range(max_iterations):
             total += 1
             gate = max(scale * max_distance, GATE_SIGMAS * sigma)
-            h, g, residuals = _normal_equations(scans, poses, directed, rows, centre, gate)
+            blocks, g, residuals = _normal_equations(scans, poses, directed, rows, centre, gate)
             if len(residuals) < 6 * len(used):
                 break
             sigma = 1.4826 * float(np.median(np.abs(residuals)))
-            a = h[np.ix_(cols, cols)]
-            a[np.diag_indices_from(a)] += DAMPING * max(np.trace(a) / len(a), 1e-12)
-            x = np.linalg.solve(a, -g[cols]).reshape(-1, 6)
+            x = _twists(blocks, g, used)
             for s, twist in zip(used, x):
                 poses[s] = _step(twist, centre) @ poses[s]
             if np.abs(x[:, :3]).max() < tolerance and np.abs(x[:, 3:]).max() < tolerance * radius:
