@@ -10,11 +10,11 @@ the field's units, a step of 0.4 apart), in its own frame (a random pose), each 
 and solver one JSON line: ``seconds`` of the whole refinement (no tracing), ``solve_seconds`` of its linear solves
 alone, the iterations, ``peak_mb``: the tracemalloc peak of one Gauss–Newton step (correspondences, normal
 equations, solve; every step allocates the same), ``lu_nnz``: the non-zeros of the sparse LU factors (SuperLU
-allocates them outside tracemalloc's view: 12 bytes each), and the worst rotation error before and after. The
-dense rows also give their poses' largest difference from the sparse ones (rotation in radians; translation over
-the scans' radius). The dense baseline lives here only: the same blocks written into a ``(6S, 6S)`` array and
-solved by ``np.linalg.solve``, as the module did before. ``--host-busy`` records that other work shared the CPUs
-(the times are then rough; the memory is not affected).
+allocates them outside tracemalloc's view: 12 bytes each), the worst rotation error before and after, and the
+worst after between neighbouring scans. The dense rows also give their poses' largest difference from the sparse
+ones (rotation in radians; translation over the scans' radius). The dense baseline lives here only: the same
+blocks written into a ``(6S, 6S)`` array and solved by ``np.linalg.solve``, as the module did before.
+``--host-busy`` records that other work shared the CPUs (the times are then rough; the memory is not affected).
 """
 
 from __future__ import annotations
@@ -90,6 +90,12 @@ def rotation_errors(poses, truth):
     return np.arctan2(sin, (np.trace(rel, axis1=1, axis2=2) - 1) / 2)
 
 
+def neighbour_errors(poses, truth):
+    """``(S − 1,)`` radians: the rotation error of each scan relative to the next one (what a path without a loop
+    closure fixes; the absolute error adds them up along it)."""
+    return rotation_errors(np.linalg.inv(poses[:-1]) @ poses[1:], np.linalg.inv(truth[:-1]) @ truth[1:])
+
+
 def dense_twists(blocks, g, used):
     """The replaced solve: ``blocks`` written into the whole ``(6S, 6S)`` matrix, cut to ``used``, damped, solved
     densely: ``(U, 6)``."""
@@ -148,6 +154,7 @@ def measure(scans, truth, start, pairs, dense: bool) -> dict:
             "peak_mb": round(peak / 2**20, 2), "lu_nnz": None if lu is None else int(lu.L.nnz + lu.U.nnz),
             "rotation_error_deg_before": round(float(np.degrees(rotation_errors(start, truth).max())), 4),
             "rotation_error_deg_after": round(float(np.degrees(rotation_errors(out.poses, truth).max())), 4),
+            "neighbour_rotation_error_deg_after": round(float(np.degrees(neighbour_errors(out.poses, truth).max())), 4),
             "poses": out.poses}
 
 
