@@ -87,7 +87,7 @@ def numbers(root: str = ROOT) -> dict:
     """The named numbers: ``{name: {"value", "source", "claims", ["commit"]}}``; ``value`` a float, a string
     (``"0.02–0.03"``, ``"14 / 15"``) or a number as the source states it."""
     infer = "python benchmarks/compare_torch.py --malloc default --points 512 1024 2048 (2026-12-02), " + COMPARE_TORCH
-    real = "python benchmarks/real_scans/run.py (f34e555), " + REAL_SCANS
+    real = "python benchmarks/real_scans/run.py (bb83a76), " + REAL_SCANS
     pair = _example_pair(root)
     return {
         # the network alone against the official code
@@ -139,13 +139,13 @@ def numbers(root: str = ROOT) -> dict:
             value=_pair_seconds(root, "kiss_small_gicp"), source=real,
             claims=[r"KISS-Matcher \+ small_gicp (?P<v>" + RANGE + r") s"]),
         "room_pairs_right": dict(
-            value=_room(root, "rpmnet_jax"), source="python benchmarks/room_stations.py (f34e555), " + ROOM,
+            value=_room(root, "rpmnet_jax"), source="python benchmarks/room_stations.py (bb83a76), " + ROOM,
             claims=[r"station pairs (?P<v>\d+ / \d+) right"]),
         "room_stations_right": dict(
-            value=_room(root, "rpmnet_jax_scans"), source="python benchmarks/room_stations.py (f34e555), " + ROOM,
+            value=_room(root, "rpmnet_jax_scans"), source="python benchmarks/room_stations.py (bb83a76), " + ROOM,
             claims=[r"the six stations (?P<v>\d+ / \d+) against"]),
         "room_stations_open3d_right": dict(
-            value=_room(root, "open3d_multiway"), source="python benchmarks/room_stations.py (f34e555), " + ROOM,
+            value=_room(root, "open3d_multiway"), source="python benchmarks/room_stations.py (bb83a76), " + ROOM,
             claims=[r"Open3D multiway's (?P<v>\d+ / \d+)"]),
         # align's time per pair: what each measures (docs/performance.md, "Which time is which")
         "network_717_points_s": dict(
