@@ -117,3 +117,18 @@ def test_the_normal_equations_hold_only_the_pairs_blocks():
     dense_step = _dense_step(blocks, g, [1, 2, 3], 5)
     np.testing.assert_allclose(joint_refine._twists(blocks, g, [1, 2, 3]), dense_step, rtol=0,
                                atol=1e-10 * np.abs(dense_step).max())
+
+
+def test_near_pairs_are_every_pair_whose_spheres_touch():
+    """The k-d tree's candidates give exactly the all-pairs rule (spheres within ``max_dist``), sorted, on a
+    random set of spheres of mixed sizes, and nothing for fewer than two."""
+    import itertools
+
+    from rpmnet_jax.multiway import refinement
+
+    rng = np.random.default_rng(5)
+    centres, radii = rng.uniform(-50.0, 50.0, size=(300, 3)), rng.uniform(0.5, 6.0, size=300)
+    every = [(a, b) for a, b in itertools.combinations(range(300), 2)
+             if np.linalg.norm(centres[a] - centres[b]) <= radii[a] + radii[b] + 0.7]
+    assert len(every) > 50 and refinement.near_pairs(centres, radii, 0.7) == every
+    assert refinement.near_pairs(centres[:1], radii[:1], 0.7) == []

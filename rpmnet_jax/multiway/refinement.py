@@ -3,9 +3,8 @@
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
+from scipy.spatial import cKDTree
 
 from rpmnet_jax.pair_edges import edges as edges_lib
 from rpmnet_jax.pose_graphs import joint_refine
@@ -14,23 +13,38 @@ from rpmnet_jax.ops import se3
 
 def overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=None) -> list:
     """``[(i, j), ...]``, ``i < j``: the placed pairs predicted to overlap by ``min_overlap`` at ``poses`` (the
-    pairs whose bounding spheres lie apart are not looked at); with ``neighbours``, of those only each scan's
-    ``neighbours`` most overlapping ones (their union)."""
+    pairs whose bounding spheres lie apart are neither looked at nor enumerated: :func:`near_pairs`); with
+    ``neighbours``, of those only each scan's ``neighbours`` most overlapping ones (their union)."""
+    placed = sorted(placed)
     means = {s: scans[s].points.mean(axis=0) for s in placed}  # each scan's centre in its own frame
-    centres = {s: se3.apply(poses[s], means[s][None])[0] for s in placed}
-    radii = {s: float(np.max(np.linalg.norm(scans[s].points - means[s], axis=1))) for s in placed}
-    near = [(i, j) for i, j in itertools.combinations(sorted(placed), 2)
-            if np.linalg.norm(centres[i] - centres[j]) <= radii[i] + radii[j] + max_dist]
+    centres = np.array([se3.apply(poses[s], means[s][None])[0] for s in placed]).reshape(-1, 3)
+    radii = np.array([float(np.max(np.linalg.norm(scans[s].points - means[s], axis=1))) for s in placed])
+    near = [(placed[a], placed[b]) for a, b in near_pairs(centres, radii, max_dist)]
     overlap = {(i, j): edges_lib.predicted_overlap(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist)
                for i, j in near}
     pairs = [p for p in near if overlap[p] >= min_overlap]
     if neighbours is None:
         return pairs
+    of_scan = {s: [] for s in placed}
+    for p in pairs:
+        of_scan[p[0]].append(p)
+        of_scan[p[1]].append(p)
     best = set()
     for s in placed:
-        mine = sorted((p for p in pairs if s in p), key=lambda p: -overlap[p])
-        best.update(mine[:neighbours])
+        best.update(sorted(of_scan[s], key=lambda p: -overlap[p])[:neighbours])
     return sorted(best)
+
+
+def near_pairs(centres: np.ndarray, radii: np.ndarray, max_dist: float) -> list:
+    """``[(a, b), ...]``, ``a < b``, sorted: the rows of ``centres (P, 3)`` whose spheres of ``radii (P,)`` lie
+    within ``max_dist`` of each other; the candidates from a k-d tree of the centres (within twice the largest
+    radius), not from every pair."""
+    if len(centres) < 2:
+        return []
+    reach = (2.0 * float(np.max(radii)) + max_dist) * (1.0 + 1e-9)  # a candidate on the bound stays one
+    found = cKDTree(centres).query_pairs(reach, output_type="ndarray")
+    return sorted((int(a), int(b)) for a, b in found
+                  if np.linalg.norm(centres[a] - centres[b]) <= radii[a] + radii[b] + max_dist)
 
 
 def icp_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_, tick) -> tuple:
