@@ -14,20 +14,24 @@ EDGE_DOUBTS = ("weigh", "reject", "off")
 class ScanOptions:
     """How :func:`rpmnet_jax.align_scans` registers many scans (see :mod:`rpmnet_jax.multiway.scan_alignment`).
 
-    Sizes (caller's units; ``None``: relative to the median robust scan radius): ``voxel_size`` (default 2%),
-    ``max_correspondence_distance`` (the inlier threshold of fitness and overlap, default 5%).
+    Sizes (caller's units; ``None``: from the data, :mod:`rpmnet_jax.multiway.sizes`): ``voxel_size`` (default 2%
+    of the median robust scan radius for objects, 1% for scans seen from inside a scene),
+    ``max_correspondence_distance`` (the inlier threshold of fitness and overlap, default 2.5 voxels).
     Candidate pairs: every pair up to ``all_pairs_up_to`` scans, beyond that each scan with its ``neighbours``
-    best partners by a cheap overlap estimate (whatever the order of the scans), plus a spanning tree. Pair edges: ``classical`` (FPFH + RANSAC, then a short ICP) on every candidate pair, the
+    best partners by a cheap overlap estimate (whatever the order of the scans), plus a spanning tree. Pair
+    edges: ``classical`` (FPFH + RANSAC, then a short ICP) on every candidate pair, the
     network on the candidate pairs those leave between separate groups of scans (without ``classical``: the
     network on every candidate pair): ``num_points`` per scan and ``num_iters`` network iterations,
     ``batch_size`` pairs per call. ``edge_doubt`` (:mod:`rpmnet_jax.multiway.edge_doubt`): ``"weigh"`` ranks the
     classical answers in the pose graph's consensus by fitness × (1 − ``p_wrong``), ``"reject"`` also keeps out
     those at ``p_wrong`` ≥ the model's ``reject_threshold``, ``"off"`` ranks by fitness alone; the report of scans
     resting on likely wrong edges is made in every case.
-    Accepting an edge: fitness ≥ ``min_fitness`` (network and global edges) or ≥ ``min_overlap`` (refinement
-    edges), median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (chosen on the 10
-    bunny scans, between their right answers, ≤ 0.06×, and wrong ones, ≥ 0.13×: tuning data, numbers on that data are
-    not held-out). Which defaults saw which data: ``docs/tuning.md``.
+    Accepting an edge: fitness ≥ ``min_fitness`` (pair edges, and a scan's placement onto the merged placed scans) or
+    ≥ ``min_overlap`` (a placed scan's edges to each scan placed before it, and refinement edges: one scan may
+    overlap a few), median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (default by
+    kind: :func:`rpmnet_jax.multiway.sizes.plane_residual`; the object bar 0.1 chosen on the 10 bunny scans,
+    between their right answers, ≤ 0.06×, and wrong ones, ≥ 0.13×: tuning data, numbers on that data are not
+    held-out). Which defaults saw which data: ``docs/tuning.md``.
     Refinement: ``refine="joint"`` (default) moves all poses together on the points of every pair predicted to
     overlap by ``min_overlap``, of those each scan's ``refine_neighbours`` most overlapping ones (1,000 points per
     scan of a pair; multi-view point-to-plane,
