@@ -325,25 +325,17 @@ def _cell_values(cell: str, header: str, record: dict) -> list:
         if "right" in header:
             return [(m.group(1), s["success"] * 100, "success %")]
         return []
-    first = cell.split("(")[0]
-    m = re.search(r"(" + NUM + r")%", first)
-    if m:
-        out.append((m.group(1), s["success"] * 100, "success %"))
-    m = re.search(r"(" + NUM + r")°", cell)
-    if m:
-        out.append((m.group(1), s["median_rotation_deg"], "median rotation °"))
-    m = re.search(r"(" + NUM + r") mm\b", cell)
-    if m:
-        out.append((m.group(1), s["median_translation"] * 1000, "median translation mm"))
-    m = re.search(r"(" + NUM + r") m\b", cell)
-    if m:
-        out.append((m.group(1), s["median_translation"], "median translation m"))
-    m = re.search(r"(" + NUM + r") s(?:/pair)?\b", cell)
-    if m:
-        out.append((m.group(1), seconds, "seconds"))
-    m = re.search(r"(" + NUM + r") MB", cell)
-    if m:
-        out.append((m.group(1), record["peak_rss_mb"], "peak MB"))
+    measures = (  # (where, pattern, value, label): the success share is read before its parenthesis
+        (cell.split("(")[0], r"%", s["success"] * 100, "success %"),
+        (cell, r"°", s["median_rotation_deg"], "median rotation °"),
+        (cell, r" mm\b", s["median_translation"] * 1000, "median translation mm"),
+        (cell, r" m\b", s["median_translation"], "median translation m"),
+        (cell, r" s(?:/pair)?\b", seconds, "seconds"),
+        (cell, r" MB", record["peak_rss_mb"], "peak MB"))
+    for text, unit, value, label in measures:
+        m = re.search(r"(" + NUM + r")" + unit, text)
+        if m:
+            out.append((m.group(1), value, label))
     return out
 
 
