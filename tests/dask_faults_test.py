@@ -1,7 +1,8 @@
 """Faults on a real Dask cluster (a ``dask scheduler`` and ``dask worker`` processes started here, small synthetic
 scans): every worker killed mid-run stops ``rpmnet-register-scans`` with one line (exit 1) within the timeout, the
 cache keeping what finished, and the same command resumes once a worker is back; a scheduler without workers stops
-it the same way; one of two workers killed mid-run gives the in-process poses; an embedded cluster's worker sizes Numba's,
+it the same way; a task that kills every worker running it stops it with one line naming its pair; one of two
+workers killed mid-run gives the in-process poses; an embedded cluster's worker sizes Numba's,
 BLAS's and XLA's threads to its one thread. Each kill happens when the first pair result is back (in the progress
 callback), not after a guessed sleep."""
 
@@ -35,14 +36,14 @@ class Cluster:
     two workers need, runs every 20 ms (2 s by default): as deep into a long run, spare copies are gone when a
     worker is killed (a scattered scan's only copy could go with it)."""
 
-    def __init__(self, folder):
+    def __init__(self, folder, **scheduler_env):
         self.bin = os.path.dirname(sys.executable)
         self.env = dict(os.environ, JAX_PLATFORMS="cpu", **pair_engine.worker_environment(1))
         self.file = folder / "scheduler.json"
         self.scheduler = subprocess.Popen(
             [os.path.join(self.bin, "dask"), "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
              "--scheduler-file", str(self.file)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            env=dict(self.env, DASK_DISTRIBUTED__SCHEDULER__ACTIVE_MEMORY_MANAGER__INTERVAL="20ms"))
+            env=dict(self.env, DASK_DISTRIBUTED__SCHEDULER__ACTIVE_MEMORY_MANAGER__INTERVAL="20ms", **scheduler_env))
         self.workers = []
         try:
             deadline = time.time() + 60
@@ -55,11 +56,14 @@ class Cluster:
             self.close()
             raise
 
-    def add_workers(self, count: int) -> list:
-        """Starts ``count`` more workers and waits until the scheduler has them all; returns them."""
-        new = [subprocess.Popen([os.path.join(self.bin, "dask"), "worker", "--nthreads", "1", "--no-nanny",
+    def add_workers(self, count: int, nanny: bool = False, preload: str | None = None) -> list:
+        """Starts ``count`` more workers (``nanny``: each restarted when it dies; ``preload``: a module each runs
+        as it starts) and waits until the scheduler has them all; returns them."""
+        extra = ["--nanny" if nanny else "--no-nanny"] + (["--preload", preload] if preload else [])
+        new = [subprocess.Popen([os.path.join(self.bin, "dask"), "worker", "--nthreads", "1", *extra,
                                  "--no-dashboard", "--name", f"w{len(self.workers) + k}", "--scheduler-file",
-                                 str(self.file)], env=self.env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                 str(self.file)], env=self.env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                start_new_session=True)  # its own process group: a nanny's worker goes with it
                for k in range(count)]
         self.workers += new
         alive = sum(w.poll() is None for w in self.workers)
@@ -68,6 +72,11 @@ class Cluster:
         return new
 
     def close(self) -> None:  # the workers hold nothing worth a clean shutdown
+        for p in self.workers:
+            try:
+                os.killpg(p.pid, signal.SIGKILL)
+            except ProcessLookupError:  # the group is gone
+                pass
         for p in [*self.workers, self.scheduler]:
             if p.poll() is None:
                 p.kill()
@@ -207,3 +216,74 @@ def test_an_embedded_cluster_s_worker_sizes_numba_blas_and_xla_to_its_thread(mon
         counts = list(engine.client.run(_thread_counts).values())
     print(f"threads in the worker: {counts}")
     assert counts == [{"nthreads": 1, "numba": 1, "numba in a task": 1, "blas": [1], "xla": 1}]
+
+
+KILLER = """# preloaded into a dask worker: the classical task of pair (0, 1) ends the worker's process, a moment after it
+# starts (as a crash or the kernel's out-of-memory killer would)
+import os
+import time
+from rpmnet_jax.pair_edges import pair_engine
+
+_classical_pair = pair_engine.classical_pair
+
+
+def classical_pair(scans, i, j, settings):
+    if (i, j) == (0, 1):
+        time.sleep(0.5)
+        os._exit(1)
+    return _classical_pair(scans, i, j, settings)
+
+
+pair_engine.classical_pair = classical_pair  # a task's function is found by its name as it is unpickled
+"""
+
+
+def test_a_task_that_kills_every_worker_running_it_stops_in_one_line_naming_its_pair(tmp_path, capsys,
+                                                                                     random_weights):
+    (tmp_path / "killer.py").write_text(KILLER)
+    cluster = Cluster(tmp_path, DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES="1")  # 3 by default
+    try:  # with a nanny a killed worker comes back, and takes the task again: two deaths, then KilledWorker
+        cluster.add_workers(1, nanny=True, preload=str(tmp_path / "killer.py"))
+        start = time.monotonic()
+        rc = register_scans.main(_write_scans(tmp_path, 3) + ["--checkpoint", random_weights, "--scheduler",
+                                                              cluster.address, "--cache", str(tmp_path / "cache"),
+                                                              "--out-poses", str(tmp_path / "p.conf")])
+        waited, err = time.monotonic() - start, capsys.readouterr().err
+    finally:
+        cluster.close()
+    print(f"stopped after {waited:.1f} s: {err.strip()}")
+    assert rc == 1 and len(err.strip().splitlines()) == 1, err
+    assert "the task of pairs [(0, 1)] killed the Dask workers that ran it 2 times" in err, err
+    assert not (tmp_path / "p.conf").exists()
+
+
+def test_a_scheduler_that_dies_mid_run_stops_in_one_line(cluster, tmp_path, capsys, monkeypatch, random_weights):
+    monkeypatch.setattr(pair_engine, "NO_WORKERS_TIMEOUT", 3.0)
+    cluster.add_workers(1)
+    killed = []
+
+    class KillingBars:  # the scheduler killed when the first pair result is back
+        def __init__(self, quiet=False):
+            pass
+
+        def __call__(self, stage, done, total):
+            if stage == STAGE and not killed:
+                cluster.scheduler.send_signal(signal.SIGKILL)
+                cluster.scheduler.wait(timeout=30)
+                killed.append(time.monotonic())
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(register_scans.runtime, "ProgressBars", KillingBars)
+    rc = register_scans.main(_write_scans(tmp_path) + ["--checkpoint", random_weights, "--scheduler", cluster.address,
+                                                       "--cache", str(tmp_path / "cache"), "--refine", "none",
+                                                       "--out-poses", str(tmp_path / "p.conf")])
+    waited, err = time.monotonic() - killed[0], capsys.readouterr().err
+    print(f"stopped {waited:.1f} s after the scheduler was killed: {err.strip()}")
+    assert rc == 1 and len(err.strip().splitlines()) == 1, err
+    assert re.search(rf"the Dask scheduler at {cluster.address} stopped answering with \d of 10 pairs of this stage "
+                     "still to run; the cache keeps the pairs that finished: the same command resumes from them once "
+                     "the scheduler is back", err), err
+    assert waited < 60 and not (tmp_path / "p.conf").exists()  # the client's reconnection timeout, not a hang
+    assert len([f for f in os.listdir(tmp_path / "cache") if f.endswith(".npz")]) >= 1

@@ -204,34 +204,3 @@ def test_an_embedded_local_cluster_gives_the_in_process_poses(in_process, random
     clouds, expected = in_process
     result = rpmnet_jax.align_scans(clouds, options=OPTIONS, checkpoint=random_weights, scheduler=2)
     _close(result.poses, expected[True].poses)
-
-
-def test_a_task_that_kills_its_workers_is_named_in_one_line(monkeypatch):
-    """The scheduler gives up on a task that killed every worker that ran it (``KilledWorker``): the run stops with
-    one line naming the task's pairs (the CLI prints it and exits 1), not a traceback from deep in Dask."""
-    distributed = pytest.importorskip("distributed")
-
-    class Future:
-        key = "classical-pair-0-1"
-
-        def result(self, timeout=None):
-            raise distributed.KilledWorker(self.key, "tcp://127.0.0.1:1", 3)
-
-    class Client:
-        def submit(self, fn, scans, *args, **kwargs):
-            return Future()
-
-    class Finished(list):  # distributed.as_completed with every future back
-        def is_empty(self):
-            return not self
-
-        def next_batch(self, block=True):
-            batch = self[:]
-            self.clear()
-            return batch
-
-    monkeypatch.setattr(distributed, "as_completed", Finished)
-    engine = pair_engine.PairEngine()
-    engine.client, engine._scan_futures = Client(), {0: None, 1: None}
-    with pytest.raises(pair_engine.PairTaskError, match=r"the task of pairs \[\(0, 1\)\] killed the Dask workers"):
-        engine._run([(pair_engine.classical_pair, (0, 1, None), [(0, 1)])], {(0, 1): "n"}, {}, [(0, 1)], None)

@@ -15,13 +15,15 @@ Faults: a worker that dies mid-run loses only its running tasks and the results 
 scheduler runs them again on the other workers, and as the edges do not depend on where they ran, the poses are the
 same. A task that kills every worker running it stops the run with one line naming its pairs
 (:class:`PairTaskError`); a scheduler left with no worker for :data:`NO_WORKERS_TIMEOUT` seconds stops it with one
-line too (:class:`NoWorkersError`), the cache keeping what finished. An embedded cluster's workers size Numba's,
+line too (:class:`NoWorkersError`), and so does a scheduler that stops answering, the cache keeping what finished. An embedded cluster's workers size Numba's,
 BLAS's and XLA's thread pools to their own thread (:func:`worker_environment`): one worker a core, not every pool
 on every core.
 """
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures
 import os
 import pickle
 import time
@@ -39,6 +41,7 @@ WORKERS_POLL = 1.0  # seconds between asking the scheduler for its workers while
 RESULT_TIMEOUT = 10.0  # seconds to fetch a finished result; past it (its worker died) it is awaited again
 THREADS_PER_WORKER = 1  # an embedded cluster's worker: one task at a time, every pool it uses this size
 NETWORK_TAG, CLASSICAL_TAG = 0, 1  # a pair's generator: (seed, tag, i, j); refinement round r: (seed, 2 + r, i, j)
+STARTED = "rpmnet_jax-pair-task-started"  # the scheduler's event topic of pair tasks starting on workers
 _PARAMS = object()  # stands for the network's parameters among a task's arguments (sent once, not per task)
 
 
@@ -117,6 +120,17 @@ def _use_compile_cache(folder) -> None:
     jax.config.update("jax_compilation_cache_dir", folder)
 
 
+def _logged(fn, *args, **kwargs):
+    """Runs the pair task ``fn(*args, **kwargs)`` on a Dask worker, first telling the scheduler that it starts
+    (an event of topic :data:`STARTED`: the task's key), so a task that kills its workers can be told from the
+    tasks queued beside it (:meth:`PairEngine._killer`)."""
+    import distributed
+
+    worker = distributed.get_worker()
+    worker.log_event(STARTED, worker.get_current_task())
+    return fn(*args, **kwargs)
+
+
 def worker_environment(nthreads: int) -> dict:
     """Environment variables that size a worker process's thread pools to its ``nthreads``: Numba's (read when
     Numba is imported), BLAS's (OpenBLAS, MKL, OpenMP: read when a library loads) and XLA's CPU pool
@@ -156,8 +170,8 @@ def check_scheduler(scheduler):
 
 
 class PairTaskError(RuntimeError):
-    """A pair task that the Dask scheduler gave up on (it killed every worker that ran it); the message names its
-    pairs in one line."""
+    """A pair task that the Dask scheduler gave up on (it killed every worker that ran it; the message names its
+    pairs), or a scheduler that stopped answering; the message is one line."""
 
 
 class NoWorkersError(PairTaskError):
@@ -317,6 +331,7 @@ class PairEngine:
                     finished(fn(self.scans, *args))
                     advance()
         else:
+            import dask.base
             import distributed
 
             futures, needed = [], {}
@@ -324,7 +339,8 @@ class PairEngine:
                 scans = {s: self._scan_futures[s] for s in sorted({s for p in needs for s in p})}
                 args = tuple(self._params_future if a is _PARAMS else a for a in args)
                 extra = {"compile_cache": self._compile_cache} if fn is network_chunk else {}
-                futures.append(self.client.submit(fn, scans, *args, pure=True, **extra))
+                key = f"{fn.__name__}-{dask.base.tokenize(fn, scans, *args, **extra)}"  # named as its function
+                futures.append(self.client.submit(_logged, fn, scans, *args, key=key, **extra))
                 needed[futures[-1].key] = needs
             results, workers = distributed.as_completed(futures), _Workers(self.client)
             while not results.is_empty():
@@ -337,22 +353,40 @@ class PairEngine:
                     try:
                         new = future.result(timeout=RESULT_TIMEOUT)
                     except distributed.KilledWorker as e:  # the scheduler gave up on it: name the pairs, one line
-                        raise PairTaskError(f"the task of pairs {[tuple(p) for p in needed[future.key]]} killed the "
-                                            "Dask workers that ran it; the pairs finished before it are in the cache "
-                                            "(if any)") from e
+                        raise PairTaskError(self._killer(future.key, needed, edges)) from e
                     except distributed.TimeoutError:  # its result died with its worker: it runs again elsewhere
                         results.add(future)
                         continue
+                    except concurrent.futures.CancelledError as e:  # the client cancels every task when it loses
+                        # the scheduler (and gives up reconnecting after CONNECT_TIMEOUT)
+                        raise PairTaskError(f"the Dask scheduler at {self.client.scheduler.address} stopped answering "
+                                            f"with {total - done[0]} of {total} pairs of this stage still to run; "
+                                            f"{self._kept('the scheduler is back')}") from e
                     finished(new)
                     advance(len(new))
         return [edges[tuple(p)] for p in pairs]
 
+    def _killer(self, key, needed: dict, edges: dict) -> str:
+        """The one line of a run stopped by a task that killed its workers. The scheduler gives up on every task
+        that was on a worker as it died too often, those queued there beside the killer as well: the killer is the
+        unfinished task that started most often (:func:`_logged`); ``key`` (the task given up on) when none did."""
+        starts = collections.Counter(key for _, key in self.client.get_events(STARTED))
+        unfinished = [k for k, pairs in needed.items() if any(tuple(p) not in edges for p in pairs)]
+        killer = max(unfinished, key=lambda k: starts[k], default=key)
+        killer = killer if starts[killer] >= 2 else key
+        count = f" {starts[killer]} times" if starts[killer] >= 2 else ""
+        return (f"the task of pairs {[tuple(p) for p in needed[killer]]} killed the Dask workers that ran it{count}; "
+                "the pairs finished before it are in the cache (if any)")
+
     def _no_workers(self, left: int, total: int) -> str:
         """The one line of a run stopped for want of workers."""
-        kept = ("the cache keeps the pairs that finished: the same command resumes from them once workers are there"
-                if self.cache is not None else "no cache was given, so none of the finished pairs is kept")
         return (f"no Dask workers at {self.client.scheduler.address} for {NO_WORKERS_TIMEOUT:g} s, {left} of {total} "
-                f"pairs of this stage still to run; {kept}")
+                f"pairs of this stage still to run; {self._kept('workers are there')}")
+
+    def _kept(self, when: str) -> str:
+        """What a stopped run leaves for the next one, which can start ``when``."""
+        return (f"the cache keeps the pairs that finished: the same command resumes from them once {when}"
+                if self.cache is not None else "no cache was given, so none of the finished pairs is kept")
 
 
 class _Workers:
