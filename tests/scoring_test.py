@@ -78,3 +78,26 @@ def test_plane_fit_information_is_the_right_perturbation_jacobian():
     empty = scoring.plane_fit(src, ref, normals, t, np.zeros((0, 2), int))
     np.testing.assert_array_equal(empty.information, np.zeros((6, 6)))
     assert empty.residuals.shape == (0,)
+
+
+def test_balanced_fitness_weighs_each_normal_direction_the_same():
+    """Ground (900 points, normals up) that fits and two walls (100 points each, normals along x and y) that do
+    not: plain fitness 0.82, balanced 1/3; a direction with fewer than MIN_BUCKET points does not count."""
+    rng = np.random.default_rng(0)
+    up, x, y = np.eye(3)[2], np.eye(3)[0], np.eye(3)[1]
+    jitter = lambda n, d: d + rng.normal(scale=0.02, size=(n, 3))
+    normals = np.concatenate([jitter(900, up), jitter(100, x), jitter(100, y)])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    inlier = np.r_[np.ones(900, bool), np.zeros(200, bool)]
+    assert inlier.mean() == pytest.approx(900 / 1100)
+    assert scoring.balanced_fitness(normals, inlier) == pytest.approx(1 / 3)
+    assert scoring.balanced_fitness(normals, np.ones(1100, bool)) == 1.0
+    assert scoring.balanced_fitness(normals, np.zeros(1100, bool)) == 0.0
+    few = np.tile(-up, (scoring.MIN_BUCKET - 1, 1))  # a handful of points facing down, not fitting: not counted
+    assert scoring.balanced_fitness(np.concatenate([normals, few]),
+                                    np.r_[inlier, np.zeros(len(few), bool)]) == pytest.approx(1 / 3)
+    assert scoring.balanced_fitness(np.zeros((0, 3)), np.zeros(0, bool)) == 0.0
+    spread = scoring._directions(scoring.NORMAL_DIRECTIONS)  # the buckets: unit, spread (no two within 25 deg)
+    np.testing.assert_allclose(np.linalg.norm(spread, axis=1), 1.0)
+    cos = spread @ spread.T
+    assert cos[~np.eye(len(spread), dtype=bool)].max() < np.cos(np.radians(25))

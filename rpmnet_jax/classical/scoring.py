@@ -45,6 +45,50 @@ def evaluate_registration(src, ref, transform, max_distance: float, ref_tree: kd
     return Score(n / len(src), rmse, corr, dist[inlier])
 
 
+NORMAL_DIRECTIONS = 40  # buckets of balanced_fitness: the nearest of this many directions spread on the sphere
+MIN_BUCKET = 10  # a bucket with fewer points does not count
+
+
+def _directions(count: int) -> np.ndarray:
+    """``(count, 3)`` unit vectors spread evenly on the sphere (a Fibonacci lattice)."""
+    k = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * k / count
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+_BUCKETS = _directions(NORMAL_DIRECTIONS)
+
+
+def _bucket(normals) -> np.ndarray:
+    """``(N,)`` each unit normal's bucket: the nearest of the :data:`NORMAL_DIRECTIONS` directions."""
+    return np.argmax(np.asarray(normals, np.float64) @ _BUCKETS.T, axis=1)
+
+
+def dominant_share(normals) -> float:
+    """The share of ``normals (N, 3)`` in their fullest bucket (:func:`balanced_fitness`'): near 1 / the number of
+    directions a closed object faces, large where one plane holds most points (a scene's ground)."""
+    return float(np.bincount(_bucket(normals)).max() / len(normals)) if len(normals) else 0.0
+
+
+def balanced_fitness(normals, inlier) -> float:
+    """Fitness with every normal direction weighing the same: the points, by their unit ``normals (N, 3)``, in
+    buckets of the nearest of :data:`NORMAL_DIRECTIONS` directions; the inlier share (``inlier (N,)`` bool) of
+    each bucket of at least :data:`MIN_BUCKET` points, averaged (0 without one). Normal-space sampling
+    (Rusinkiewicz and Levoy, "Efficient variants of the ICP algorithm", 3DIM 2001) as a score: a plane that
+    holds most of the points (a scene's ground) fits under any turn about its normal and any slide along it, and
+    carries plain fitness; here it is one bucket among the surfaces that fix the pose."""
+    inlier = np.asarray(inlier, bool)
+    if len(inlier) == 0:
+        return 0.0
+    bucket = _bucket(normals)
+    counts = np.bincount(bucket, minlength=NORMAL_DIRECTIONS)
+    hits = np.bincount(bucket, weights=inlier, minlength=NORMAL_DIRECTIONS)
+    used = counts >= MIN_BUCKET
+    return float(np.mean(hits[used] / counts[used])) if used.any() else 0.0
+
+
 class PlaneFit(NamedTuple):
     information: np.ndarray  # (6, 6) on ξ = (ω, v) of transform · Exp(ξ)
     residuals: np.ndarray  # (n,) signed point-to-plane distance of each pair

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from rpmnet_jax import input_checks as checks
+from rpmnet_jax.multiway import sizes
 
 REFINES = ("icp", "joint", "none")
 EDGE_DOUBTS = ("weigh", "reject", "off")
@@ -28,7 +29,10 @@ class ScanOptions:
     resting on likely wrong edges is made in every case.
     Accepting an edge: fitness ≥ ``min_fitness`` (pair edges, and a scan's placement onto the merged placed scans) or
     ≥ ``min_overlap`` (a placed scan's edges to each scan placed before it, and refinement edges: one scan may
-    overlap a few), median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (default by
+    overlap a few), a pair edge's balanced fitness (each normal direction weighing the same, so a scene's ground
+    cannot carry it) ≥ ``min_balanced_fitness`` where the scans are a scene's (seen from inside) and one normal direction
+    holds much of its source (``multiway.sizes.DOMINANT_SHARE``: the ground),
+    median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (default by
     kind: :func:`rpmnet_jax.multiway.sizes.plane_residual`; the object bar 0.1 chosen on the 10 bunny scans,
     between their right answers, ≤ 0.06×, and wrong ones, ≥ 0.13×: tuning data, numbers on that data are not
     held-out). Which defaults saw which data: ``docs/tuning.md``.
@@ -54,6 +58,7 @@ class ScanOptions:
     min_fitness: float = 0.3  # accepting an edge
     min_overlap: float = 0.2
     max_plane_residual: float | None = None  # None: 0.1 for objects, 0.06 for scenes (multiway.sizes)
+    min_balanced_fitness: float = sizes.BALANCED_FITNESS  # pair edges from a scan with a dominant plane
     num_points: int = 256  # the network's pair edges
     num_iters: int = 3
     batch_size: int = 16
@@ -74,7 +79,7 @@ class ScanOptions:
         for name, least in (("num_points", 3), ("num_iters", 1), ("batch_size", 1), ("all_pairs_up_to", 2),
                             ("neighbours", 1), ("refine_rounds", 0), ("refine_neighbours", 1), ("refine_points", 3)):
             checks.require_at_least(f"ScanOptions.{name}", getattr(self, name), least)
-        for name in ("min_fitness", "min_overlap"):
+        for name in ("min_fitness", "min_overlap", "min_balanced_fitness"):
             checks.require_fraction(f"ScanOptions.{name}", getattr(self, name))
         checks.require_choice("ScanOptions.refine", self.refine, REFINES)
         checks.require_choice("ScanOptions.edge_doubt", self.edge_doubt, EDGE_DOUBTS)

@@ -56,6 +56,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
+from rpmnet_jax.classical import scoring
 from rpmnet_jax.geometry import offsets, threads
 from rpmnet_jax.multiway import edge_graph, options as options_lib, placement, preparation
 from rpmnet_jax.pair_edges import pair_engine
@@ -122,6 +123,8 @@ class _Run:
     prepared: preparation.Prepared
     max_dist: float  # the correspondence distance
     plane_bar: float  # an accepted edge's median point-to-plane distance, × max_dist
+    balance_bar: float  # an accepted pair edge's balanced fitness, where its source is dominated
+    dominated: np.ndarray  # (S,) bool: a scene's scan that one normal direction holds much of (its ground)
     params: object  # the network's parameters (None: loaded when the network first runs)
     cfg: config_lib.RPMNetConfig
     poses: np.ndarray = None  # (S, 4, 4), NaN while a scan is unplaced
@@ -142,9 +145,21 @@ class _Run:
         o = self.options
         return scale * np.radians(o.edge_sigma_deg), scale * (o.edge_sigma_fraction * self.max_dist)
 
-    def good(self, edge, fitness: float) -> bool:
-        """The rule an edge passes: fitness ≥ ``fitness`` and surfaces that coincide."""
-        return edge.fitness >= fitness and edge.plane_residual <= self.plane_bar * self.max_dist
+    def good(self, edge, fitness: float, balanced: float = 0.0) -> bool:
+        """The rule an edge passes: fitness ≥ ``fitness``, balanced fitness ≥ ``balanced`` and surfaces that
+        coincide."""
+        return (edge.fitness >= fitness and edge.balanced_fitness >= balanced
+                and edge.plane_residual <= self.plane_bar * self.max_dist)
+
+    def balance(self, scan: int) -> float:
+        """The balanced fitness asked of an answer whose source is ``scan``: the balance bar where the scans are a
+        scene's and one plane holds much of the scan (``sizes.DOMINANT_SHARE``), else none."""
+        return self.balance_bar if self.dominated[scan] else 0.0
+
+    def pair_edge(self, edge) -> bool:
+        """The rule a pair edge passes (found by a search, which may be wrong): :meth:`good` at ``min_fitness`` and
+        the balance its source asks."""
+        return self.good(edge, self.options.min_fitness, self.balance(edge.source))
 
     def placed(self) -> list:
         return [s for s in range(len(self.scans)) if np.isfinite(self.poses[s, 0, 0])]
@@ -163,6 +178,8 @@ def _prepare(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, pr
         max_dist = (float(o.max_correspondence_distance) if o.max_correspondence_distance is not None
                     else sizes.DISTANCE_VOXELS * prepared.voxel)
         plane_bar = o.max_plane_residual if o.max_plane_residual is not None else sizes.plane_residual(prepared.scene)
+        dominated = np.array([prepared.scene and scoring.dominant_share(s.normals) >= sizes.DOMINANT_SHARE
+                              for s in prepared.scans])  # a scene's ground, not the face of a box seen around
         if params is None and checkpoint is not None:  # a caller's checkpoint is checked (and refused) up front
             params = loading.load_params(checkpoint)
         cfg = cfg or config_lib.RPMNetConfig()
@@ -171,7 +188,8 @@ def _prepare(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, pr
             sizes.RANSAC_VOXELS * prepared.voxel, plane_bar, all(v is None for v in prepared.sensors)))
     poses = np.full((len(prepared.scans), 4, 4), np.nan)
     poses[0] = np.eye(4)
-    return _Run(o, engine, clock, progress, shift, prepared, max_dist, plane_bar, params, cfg, poses)
+    return _Run(o, engine, clock, progress, shift, prepared, max_dist, plane_bar, o.min_balanced_fitness, dominated,
+                params, cfg, poses)
 
 
 def _pair_edges(run: _Run) -> None:
@@ -184,7 +202,7 @@ def _pair_edges(run: _Run) -> None:
     if o.classical:
         with clock.stage("classical"):
             found = edge_graph.screened(engine.classical_edges(pairs, run.tick("classical edges")), run.max_dist,
-                                        lambda e: run.good(e, o.min_fitness), o.edge_doubt == "reject",
+                                        run.pair_edge, o.edge_doubt == "reject",
                                         edge_graph.free_space_check(run.scans, run.prepared.sensors, run.prepared.voxel))
             run.counts["classical"] = len(pairs)
             run.edges = [e for answers in found for e in answers]  # a symmetric pair's answers: the graph chooses
@@ -193,7 +211,7 @@ def _pair_edges(run: _Run) -> None:
     if weak:
         with clock.stage("network"):
             run.edges += [e for e in engine.network_edges(weak, run.tick("network edges"))
-                          if run.good(e, o.min_fitness)]
+                          if run.pair_edge(e)]
             run.counts["network"] = len(weak)
 
 
@@ -211,8 +229,8 @@ def _pose_graph(run: _Run) -> None:
 
 
 def _place_others(run: _Run) -> None:
-    """Step 4: each scan still unplaced registered onto the merged placed scans; placed at ``min_fitness`` with
-    coinciding surfaces; its edges to each placed scan kept at ``min_overlap`` (one scan may overlap a few)."""
+    """Step 4: each scan still unplaced registered onto the merged placed scans; placed at ``min_fitness`` and the
+    balance bar with coinciding surfaces; its edges to each placed scan kept at ``min_overlap`` (one scan may overlap a few)."""
     o = run.options
     if not any(not np.isfinite(run.poses[s, 0, 0]) for s in range(len(run.scans))):
         return
@@ -221,7 +239,8 @@ def _place_others(run: _Run) -> None:
         run.poses, found, run.pending, doubtful = placement.place_remaining(
             run.scans, run.poses, run.params, run.cfg, run.prepared.voxel, run.max_dist, seed=o.seed,
             tick=run.tick("placing the other scans"),
-            accept=lambda fitness, residual: fitness >= o.min_fitness and residual <= run.plane_bar * run.max_dist)
+            accept=lambda s, fitness, residual, balanced: (fitness >= o.min_fitness and balanced >= run.balance(s)
+                                                           and residual <= run.plane_bar * run.max_dist))
         run.counts["global"] = len(found)
         run.global_edges = [e for e in found if run.good(e, o.min_overlap)]
         run.edges += run.global_edges

@@ -49,6 +49,8 @@ class Edge(NamedTuple):
     stage: str  # "classical" (FPFH + RANSAC + ICP), "network" (batched network + ICP), "global" (placed against
     # the merged model), "refine" (ICP)
     p_wrong: float = 0.0  # a classical edge's probability of a rotation > 5° off (multiway.edge_doubt); 0: not rated
+    balanced_fitness: float = 0.0  # fitness with every normal direction of the source weighing the same
+    # (classical.scoring.balanced_fitness): what a scene's ground cannot carry
 
 
 def make_scan(points: np.ndarray, normals: np.ndarray, feature_radius: float | None = None, voxel: float = 0.0,
@@ -71,16 +73,18 @@ def make_scan(points: np.ndarray, normals: np.ndarray, feature_radius: float | N
 
 def measure(scans, i: int, j: int, transform: np.ndarray, max_distance: float, stage: str,
             plane_distance: float | None = None) -> Edge:
-    """The edge ``i → j`` at ``transform``, scored on all of scan ``i``: fitness and RMSE within
-    ``max_distance``, point-to-plane residual and information from the pairs within ``plane_distance``
+    """The edge ``i → j`` at ``transform``, scored on all of scan ``i``: fitness (plain and balanced) and RMSE
+    within ``max_distance``, point-to-plane residual and information from the pairs within ``plane_distance``
     (default ``max_distance``)."""
     src, ref = scans[i], scans[j]
     score = scoring.evaluate_registration(src.points, ref.points, transform, max_distance, ref_tree=ref.tree)
     close = score.correspondences[score.distances <= (plane_distance or max_distance)]
     fit = scoring.plane_fit(src.points, ref.points, ref.normals, transform, close)
     residual = float(np.median(np.abs(fit.residuals))) if len(fit.residuals) else float("inf")
+    inlier = np.zeros(len(src.points), bool)
+    inlier[score.correspondences[:, 0]] = True
     return Edge(int(i), int(j), np.asarray(transform, np.float64), score.fitness, score.inlier_rmse, fit.information,
-                residual, stage)
+                residual, stage, balanced_fitness=scoring.balanced_fitness(src.normals, inlier))
 
 
 def icp_edge(scans, i: int, j: int, start: np.ndarray, max_distance: float, rng: np.random.Generator, *,

@@ -109,7 +109,8 @@ class PairCache:
                 edges = [edges_lib.Edge(int(f["source"][k]), int(f["target"][k]), f["transform"][k].astype(np.float64),
                                         float(f["fitness"][k]), float(f["inlier_rmse"][k]),
                                         f["information"][k].astype(np.float64), float(f["plane_residual"][k]),
-                                        str(f["stage"][k])) for k in range(len(f["fitness"]))]
+                                        str(f["stage"][k]), balanced_fitness=float(f["balanced_fitness"][k]))
+                         for k in range(len(f["fitness"]))]
         except (OSError, KeyError, ValueError, IndexError, zipfile.BadZipFile):
             return None
         self.reused += 1
@@ -126,7 +127,8 @@ class PairCache:
                 np.savez(f, source=field("source", np.int64), target=field("target", np.int64),
                          transform=field("transform").reshape(-1, 4, 4), fitness=field("fitness"),
                          inlier_rmse=field("inlier_rmse"), information=field("information").reshape(-1, 6, 6),
-                         plane_residual=field("plane_residual"), stage=field("stage", np.str_))
+                         plane_residual=field("plane_residual"), stage=field("stage", np.str_),
+                         balanced_fitness=field("balanced_fitness"))
             os.replace(tmp, self.path(name))
         except BaseException:
             if os.path.exists(tmp):
