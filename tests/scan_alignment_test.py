@@ -126,7 +126,7 @@ def test_a_placement_flagged_likely_wrong_is_reported(monkeypatch):
     monkeypatch.setattr(placement.alignment, "align", lambda *a, **k: types.SimpleNamespace(
         transform=np.eye(4), fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=next(flags)))
     poses, edges, pending, doubtful = placement.place_remaining(
-        scans, poses, None, None, voxel, sizes.DISTANCE_VOXELS * voxel, lambda scan, fitness, residual, balanced: True, 0,
+        scans, poses, None, None, voxel, sizes.DISTANCE_VOXELS * voxel, lambda fitness, residual, balanced: True, 0,
         lambda *_: None)
     assert pending == [] and doubtful == [1] and np.isfinite(poses).all()
 

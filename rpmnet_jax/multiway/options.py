@@ -30,8 +30,8 @@ class ScanOptions:
     Accepting an edge: fitness ≥ ``min_fitness`` (pair edges, and a scan's placement onto the merged placed scans) or
     ≥ ``min_overlap`` (a placed scan's edges to each scan placed before it, and refinement edges: one scan may
     overlap a few), a pair edge's balanced fitness (each normal direction weighing the same, so a scene's ground
-    cannot carry it) ≥ ``min_balanced_fitness`` where the scans are a scene's (seen from inside) and one normal direction
-    holds much of its source (``multiway.sizes.DOMINANT_SHARE``: the ground),
+    cannot carry it) ≥ ``min_balanced_fitness`` where the scans are a scene's (seen from inside) and the median scan holds
+    much in one normal direction (``multiway.sizes.DOMINANT_SHARE``: a ground),
     median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (default by
     kind: :func:`rpmnet_jax.multiway.sizes.plane_residual`; the object bar 0.1 chosen on the 10 bunny scans,
     between their right answers, ≤ 0.06×, and wrong ones, ≥ 0.13×: tuning data, numbers on that data are not
@@ -58,7 +58,7 @@ class ScanOptions:
     min_fitness: float = 0.3  # accepting an edge
     min_overlap: float = 0.2
     max_plane_residual: float | None = None  # None: 0.1 for objects, 0.06 for scenes (multiway.sizes)
-    min_balanced_fitness: float = sizes.BALANCED_FITNESS  # pair edges from a scan with a dominant plane
+    min_balanced_fitness: float = sizes.BALANCED_FITNESS  # pair edges and placements of a scene with a ground
     num_points: int = 256  # the network's pair edges
     num_iters: int = 3
     batch_size: int = 16

@@ -21,8 +21,8 @@ def merged(scans, poses, placed, voxel: float) -> tuple:
 
 def place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, tick):
     """Registers each unplaced scan (NaN in ``poses (S, 4, 4)``) onto the merged placed ones, in index order,
-    merging again after each success (``tick(placed, scans)`` then); ``accept(scan, fitness, median plane
-    residual, balanced fitness)`` decides. Returns (poses, the placed scans' edges to every scan placed before them, scans still pending,
+    merging again after each success (``tick(placed, scans)`` then); ``accept(fitness, median plane residual,
+    balanced fitness)`` decides. Returns (poses, the placed scans' edges to every scan placed before them, scans still pending,
     placed scans whose ``align`` answer was ``likely_wrong``)."""
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
     pending = [s for s in range(len(scans)) if s not in placed]
@@ -38,7 +38,7 @@ def place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, ti
                                           a.correspondences).residuals
             inlier = np.zeros(len(scans[s].points), bool)
             inlier[a.correspondences[:, 0]] = True
-            if accept(s, a.fitness, np.median(np.abs(residuals)) if len(residuals) else np.inf,
+            if accept(a.fitness, np.median(np.abs(residuals)) if len(residuals) else np.inf,
                       scoring.balanced_fitness(scans[s].normals, inlier)):
                 poses[s] = a.transform
                 doubtful += [s] if a.likely_wrong else []  # reported; the robust graph still decides on the edges

@@ -123,8 +123,7 @@ class _Run:
     prepared: preparation.Prepared
     max_dist: float  # the correspondence distance
     plane_bar: float  # an accepted edge's median point-to-plane distance, × max_dist
-    balance_bar: float  # an accepted pair edge's balanced fitness, where its source is dominated
-    dominated: np.ndarray  # (S,) bool: a scene's scan that one normal direction holds much of (its ground)
+    balance_bar: float  # an accepted pair edge's (and placement's) balanced fitness: 0 but in a scene with ground
     params: object  # the network's parameters (None: loaded when the network first runs)
     cfg: config_lib.RPMNetConfig
     poses: np.ndarray = None  # (S, 4, 4), NaN while a scan is unplaced
@@ -151,15 +150,10 @@ class _Run:
         return (edge.fitness >= fitness and edge.balanced_fitness >= balanced
                 and edge.plane_residual <= self.plane_bar * self.max_dist)
 
-    def balance(self, scan: int) -> float:
-        """The balanced fitness asked of an answer whose source is ``scan``: the balance bar where the scans are a
-        scene's and one plane holds much of the scan (``sizes.DOMINANT_SHARE``), else none."""
-        return self.balance_bar if self.dominated[scan] else 0.0
-
     def pair_edge(self, edge) -> bool:
         """The rule a pair edge passes (found by a search, which may be wrong): :meth:`good` at ``min_fitness`` and
-        the balance its source asks."""
-        return self.good(edge, self.options.min_fitness, self.balance(edge.source))
+        the balance bar."""
+        return self.good(edge, self.options.min_fitness, self.balance_bar)
 
     def placed(self) -> list:
         return [s for s in range(len(self.scans)) if np.isfinite(self.poses[s, 0, 0])]
@@ -178,8 +172,7 @@ def _prepare(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, pr
         max_dist = (float(o.max_correspondence_distance) if o.max_correspondence_distance is not None
                     else sizes.DISTANCE_VOXELS * prepared.voxel)
         plane_bar = o.max_plane_residual if o.max_plane_residual is not None else sizes.plane_residual(prepared.scene)
-        dominated = np.array([prepared.scene and scoring.dominant_share(s.normals) >= sizes.DOMINANT_SHARE
-                              for s in prepared.scans])  # a scene's ground, not the face of a box seen around
+        balance_bar = o.min_balanced_fitness if _grounded(prepared) else 0.0
         if params is None and checkpoint is not None:  # a caller's checkpoint is checked (and refused) up front
             params = loading.load_params(checkpoint)
         cfg = cfg or config_lib.RPMNetConfig()
@@ -188,8 +181,15 @@ def _prepare(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, pr
             sizes.RANSAC_VOXELS * prepared.voxel, plane_bar, all(v is None for v in prepared.sensors)))
     poses = np.full((len(prepared.scans), 4, 4), np.nan)
     poses[0] = np.eye(4)
-    return _Run(o, engine, clock, progress, shift, prepared, max_dist, plane_bar, o.min_balanced_fitness, dominated,
-                params, cfg, poses)
+    return _Run(o, engine, clock, progress, shift, prepared, max_dist, plane_bar, balance_bar, params, cfg, poses)
+
+
+def _grounded(prepared: preparation.Prepared) -> bool:
+    """Whether the scans are a scene's with a ground: seen from inside, and the median scan holds at least
+    ``sizes.DOMINANT_SHARE`` of its points in one normal direction (a box seen around holds as much in a face:
+    objects never count)."""
+    shares = [scoring.dominant_share(s.normals) for s in prepared.scans]
+    return bool(prepared.scene and np.median(shares) >= sizes.DOMINANT_SHARE)
 
 
 def _pair_edges(run: _Run) -> None:
@@ -239,8 +239,8 @@ def _place_others(run: _Run) -> None:
         run.poses, found, run.pending, doubtful = placement.place_remaining(
             run.scans, run.poses, run.params, run.cfg, run.prepared.voxel, run.max_dist, seed=o.seed,
             tick=run.tick("placing the other scans"),
-            accept=lambda s, fitness, residual, balanced: (fitness >= o.min_fitness and balanced >= run.balance(s)
-                                                           and residual <= run.plane_bar * run.max_dist))
+            accept=lambda fitness, residual, balanced: (fitness >= o.min_fitness and balanced >= run.balance_bar
+                                                        and residual <= run.plane_bar * run.max_dist))
         run.counts["global"] = len(found)
         run.global_edges = [e for e in found if run.good(e, o.min_overlap)]
         run.edges += run.global_edges
