@@ -1,4 +1,4 @@
-"""A room scanned from six terrestrial-scanner stations (``rpmnet_jax.data.rooms``: 10 × 7 × 3 m, columns,
+"""A room scanned from six terrestrial-scanner stations (``rpmnet_jax.simulation.rooms``: 10 × 7 × 3 m, columns,
 furniture, a door recess, 3 mm noise, each station in its own frame with a random heading): the 15 station pairs
 by ``rpmnet_jax.align``, Open3D's scan recipe and KISS-Matcher + small_gicp (5 cm voxel, Open3D's room
 tutorials; normals toward the sensor for Open3D), and the six stations in shuffled order by
@@ -38,7 +38,7 @@ def _errors(estimate, truth) -> tuple:
 
 
 def run(method: str, seed: int) -> dict:
-    from rpmnet_jax.data import rooms
+    from rpmnet_jax.simulation import rooms
     stations = rooms.stations(seed)
     clouds, poses = [s.points for s in stations], np.stack([s.pose for s in stations])
     rows = []

@@ -4,7 +4,7 @@
         [--mesh ../shared/data/stanford_bunny/bun_zipper_res2.ply] [--plot docs/scan_scaling.png]
         [--out-jsonl results.jsonl] [--keep DIR]
 
-For each size a set of simulated range scans of ``--mesh`` is made (:mod:`rpmnet_jax.data.range_scans`, files
+For each size a set of simulated range scans of ``--mesh`` is made (:mod:`rpmnet_jax.simulation.range_scans`, files
 in a seeded shuffled order, into a temporary folder or ``--keep DIR/scansN``) and registered by
 ``benchmarks/campaign_time.py``'s own side in a fresh process (reading included), then scored against the true
 poses. One JSON line per size (seconds, process seconds, peak resident memory, pairs registered, scans within
@@ -31,7 +31,7 @@ MESH = os.path.join(bench_utils.REPO, "..", "shared", "data", "stanford_bunny", 
 
 def make_set(folder: str, vertices, faces, scans: int, a) -> None:
     """Simulates ``scans`` scans of the mesh and writes them, shuffled, with ``truth.conf`` to ``folder``."""
-    from rpmnet_jax.data import range_scans
+    from rpmnet_jax.simulation import range_scans
 
     made = range_scans.simulate(vertices, faces, scans, image_size=a.image_size, noise=a.noise, seed=a.seed)
     range_scans.write_set(folder, made, shuffle_seed=a.seed, settings={

@@ -7,7 +7,7 @@ from simulated range scans of TRAINING meshes only (never the Stanford bunny: it
 ``collect`` makes a mesh of each of :data:`TRAIN_ROWS` (rows of the train file of ``--data-root``) by Poisson
 reconstruction of its 2,048 points and normals (:mod:`rpmnet_jax.data.poisson`, Open3D), scaled to a seeded box
 diagonal in 0.15–0.3 (metres, like the bunny's 0.25), simulates each of :data:`SETS` of range scans of it
-(:func:`rpmnet_jax.data.range_scans.simulate`) and records every distinct classical answer of every pair as
+(:func:`rpmnet_jax.simulation.range_scans.simulate`) and records every distinct classical answer of every pair as
 ``align_scans`` makes them (:func:`rpmnet_jax.evaluation.edge_doubt_records.simulated_set`) in the JSON-lines
 ``--cache``, then does the same for :data:`RING_SETS` (:func:`rpmnet_jax.data.synthetic.ring_views` of synthetic
 shapes ~0.2 across, 0.5 mm noise), a set at a time until ``--minutes`` are spent (sets already there are

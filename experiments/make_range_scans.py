@@ -1,4 +1,4 @@
-"""Write a set of simulated range scans of a mesh with their true poses (:mod:`rpmnet_jax.data.range_scans`).
+"""Write a set of simulated range scans of a mesh with their true poses (:mod:`rpmnet_jax.simulation.range_scans`).
 
     python -m experiments.make_range_scans --mesh ../shared/data/stanford_bunny/bun_zipper_res2.ply --scans 60 \
         --image-size 640 --noise 0.0005 --seed 0 --out scans60 --shuffle
@@ -12,7 +12,7 @@ import argparse
 import sys
 import time
 
-from rpmnet_jax.data import range_scans
+from rpmnet_jax.simulation import range_scans
 from rpmnet_jax.io import clouds, ply
 
 

@@ -1,5 +1,5 @@
 """Write a simulated site campaign: a town scanned from terrestrial-scanner stations along its streets, with the
-stations' true poses (:mod:`rpmnet_jax.data.sites`).
+stations' true poses (:mod:`rpmnet_jax.simulation.sites`).
 
     python -m experiments.make_site --stations 1000 --seed 0 --out site1000 --shuffle
 
@@ -15,7 +15,7 @@ import argparse
 import sys
 import time
 
-from rpmnet_jax.data import range_scans, sites
+from rpmnet_jax.simulation import range_scans, sites
 
 
 def main(argv=None) -> int:

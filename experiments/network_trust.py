@@ -9,7 +9,7 @@ Runs ``align(init="classical")`` (the answer ``auto`` would keep) on two kinds o
 rotation error, fitness, ``p_wrong`` and number of distinct candidates:
 
 - crops: every partial test pair of each data root, ±45° and any orientation (the public accuracy rows);
-- range scans: simulated range scans (:func:`rpmnet_jax.data.range_scans.simulate`, 12 per mesh, 240 × 240, 0.5 mm
+- range scans: simulated range scans (:func:`rpmnet_jax.simulation.range_scans.simulate`, 12 per mesh, 240 × 240, 0.5 mm
   noise) of Poisson meshes of TRAINING shapes (``experiments.fit_edge_doubt.TRAIN_ROWS``; never the bunny), every
   pair whose view directions lie 40–120° apart, at full density and sampled to 1,024 points.
 
@@ -61,7 +61,7 @@ def scan_pairs(rows, num_scans: int):
     whose view directions lie :data:`VIEW_ANGLES` apart, at full density (``kind`` "scans") and sampled to
     :data:`SAMPLE` points ("scans_1024"); ``gt`` maps scan ``i`` onto scan ``j``."""
     from experiments import fit_edge_doubt
-    from rpmnet_jax.data import range_scans
+    from rpmnet_jax.simulation import range_scans
     meshes = fit_edge_doubt.meshes(fit_edge_doubt.DATA_ROOT, rows)  # one read of the train file
     for row in rows:
         scans = range_scans.simulate(*meshes[row], num_scans, image_size=240, noise=0.0005, seed=row)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from rpmnet_jax.data import range_scans
+from rpmnet_jax.simulation import range_scans
 from rpmnet_jax.evaluation import pose_errors
 from rpmnet_jax.io import clouds, poses as poses_io
 

@@ -4,7 +4,7 @@ points, moved by its pose, lie on the room's surfaces."""
 import numpy as np
 import pytest
 
-from rpmnet_jax.data import rooms
+from rpmnet_jax.simulation import rooms
 
 
 @pytest.mark.parametrize("sensor, direction, distance", [

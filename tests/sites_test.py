@@ -10,7 +10,7 @@ import pytest
 from scipy.sparse import csgraph, csr_matrix
 from scipy.spatial import cKDTree
 
-from rpmnet_jax.data import sites
+from rpmnet_jax.simulation import sites
 from rpmnet_jax.io import poses as poses_io
 
 FLAT = np.zeros(2)

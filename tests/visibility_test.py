@@ -3,7 +3,7 @@ furniture lands in it; the six stations placed by ``align_scans`` with the check
 
 import numpy as np
 
-from rpmnet_jax.data import rooms
+from rpmnet_jax.simulation import rooms
 from rpmnet_jax.geometry import visibility
 
 

@@ -58,9 +58,9 @@ def scan_set(clouds, poses, *, seed: int = 0, tick=None, **meta) -> list:
 def simulated_set(vertices, faces, num_scans: int, *, image_size: int, noise: float, sim_seed: int, seed: int = 0,
                   tick=None, **meta) -> list:
     """:func:`scan_set` of ``num_scans`` range scans of the mesh ``vertices (V, 3)``, ``faces (F, 3)`` simulated
-    with ``image_size``, ``noise`` and ``sim_seed`` (:func:`rpmnet_jax.data.range_scans.simulate`), each scan in
+    with ``image_size``, ``noise`` and ``sim_seed`` (:func:`rpmnet_jax.simulation.range_scans.simulate`), each scan in
     its sensor frame; the settings go into ``meta``."""
-    from rpmnet_jax.data import range_scans
+    from rpmnet_jax.simulation import range_scans
 
     sim = range_scans.simulate(vertices, faces, num_scans, image_size=image_size, noise=noise, seed=sim_seed)
     return scan_set([s.points for s in sim], np.stack([s.pose for s in sim]), seed=seed, tick=tick,

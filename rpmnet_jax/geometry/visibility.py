@@ -16,7 +16,7 @@ import numpy as np
 BIN_DEG = 1.0  # direction bins of the range image
 # The largest share of an answer's points (either way round) in the other scan's free space that an edge may have.
 # kitti_04's tune pairs: right answers up to 0.028 (moving cars), wrong ones from 0.035; the simulated room's six
-# stations (data/rooms.py, seed 0): right answers up to 0.006, half-turned ones 0.05-0.35. Chosen between them
+# stations (simulation/rooms.py, seed 0): right answers up to 0.006, half-turned ones 0.05-0.35. Chosen between them
 # (tuning data: not held-out)
 MAX_FREE_SPACE_SHARE = 0.04
 MARGIN_CELLS = 5.0  # the margin, in cells of the voxel grid the check runs on (noise, the bins' spread): align_scans'
