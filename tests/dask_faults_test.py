@@ -218,8 +218,8 @@ def test_an_embedded_cluster_s_worker_sizes_numba_blas_and_xla_to_its_thread(mon
     assert counts == [{"nthreads": 1, "numba": 1, "numba in a task": 1, "blas": [1], "xla": 1}]
 
 
-KILLER = """# preloaded into a dask worker: the classical task of pair (0, 1) ends the worker's process, a moment after it
-# starts (as a crash or the kernel's out-of-memory killer would)
+KILLER = """# preloaded into a dask worker: the classical task of pair (0, 1) ends the worker's process, a moment
+# after it starts (as a crash or the kernel's out-of-memory killer would)
 import os
 import time
 from rpmnet_jax.pair_edges import pair_engine

@@ -27,15 +27,15 @@ class ScanOptions:
     classical answers in the pose graph's consensus by fitness × (1 − ``p_wrong``), ``"reject"`` also keeps out
     those at ``p_wrong`` ≥ the model's ``reject_threshold``, ``"off"`` ranks by fitness alone; the report of scans
     resting on likely wrong edges is made in every case.
-    Accepting an edge: fitness ≥ ``min_fitness`` (pair edges, and a scan's placement onto the merged placed scans) or
-    ≥ ``min_overlap`` (a placed scan's edges to each scan placed before it, and refinement edges: one scan may
-    overlap a few), a pair edge's balanced fitness (each normal direction weighing the same, so a scene's ground
-    cannot carry it) ≥ ``min_balanced_fitness`` where the scans are a scene's (seen from inside) and the median scan holds
-    much in one normal direction (``multiway.sizes.DOMINANT_SHARE``: a ground),
-    median point-to-plane distance ≤ ``max_plane_residual`` × the correspondence distance (default by
-    kind: :func:`rpmnet_jax.multiway.sizes.plane_residual`; the object bar 0.1 chosen on the 10 bunny scans,
-    between their right answers, ≤ 0.06×, and wrong ones, ≥ 0.13×: tuning data, numbers on that data are not
-    held-out). Which defaults saw which data: ``docs/tuning.md``.
+    Accepting an edge: fitness ≥ ``min_fitness`` (pair edges, and a scan's placement onto the merged placed scans) or ≥
+    ``min_overlap`` (a placed scan's edges to each scan placed before it, and refinement edges: one scan may overlap a
+    few), a pair edge's balanced fitness (each normal direction weighing the same, so a scene's ground cannot carry
+    it) ≥ ``min_balanced_fitness`` where the scans are a scene's (seen from inside) and the median scan holds much in
+    one normal direction (``multiway.sizes.DOMINANT_SHARE``: a ground), median point-to-plane distance ≤
+    ``max_plane_residual`` × the correspondence distance (default by kind:
+    :func:`rpmnet_jax.multiway.sizes.plane_residual`; the object bar 0.1 chosen on the 10 bunny scans, between their
+    right answers, ≤ 0.06×, and wrong ones, ≥ 0.13×: tuning data, numbers on that data are not held-out). Which
+    defaults saw which data: ``docs/tuning.md``.
     Refinement: ``refine="joint"`` (default) moves all poses together on the points of every pair predicted to
     overlap by ``min_overlap``, of those each scan's ``refine_neighbours`` most overlapping ones (1,000 points per
     scan of a pair; multi-view point-to-plane,

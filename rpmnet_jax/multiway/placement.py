@@ -22,8 +22,8 @@ def merged(scans, poses, placed, voxel: float) -> tuple:
 def place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, tick):
     """Registers each unplaced scan (NaN in ``poses (S, 4, 4)``) onto the merged placed ones, in index order,
     merging again after each success (``tick(placed, scans)`` then); ``accept(fitness, median plane residual,
-    balanced fitness)`` decides. Returns (poses, the placed scans' edges to every scan placed before them, scans still pending,
-    placed scans whose ``align`` answer was ``likely_wrong``)."""
+    balanced fitness)`` decides. Returns (poses, the placed scans' edges to every scan placed before them, scans
+    still pending, placed scans whose ``align`` answer was ``likely_wrong``)."""
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
     pending = [s for s in range(len(scans)) if s not in placed]
     edges, doubtful = [], []

@@ -230,7 +230,8 @@ def _pose_graph(run: _Run) -> None:
 
 def _place_others(run: _Run) -> None:
     """Step 4: each scan still unplaced registered onto the merged placed scans; placed at ``min_fitness`` and the
-    balance bar with coinciding surfaces; its edges to each placed scan kept at ``min_overlap`` (one scan may overlap a few)."""
+    balance bar with coinciding surfaces; its edges to each placed scan kept at ``min_overlap`` (one scan may
+    overlap a few)."""
     o = run.options
     if not any(not np.isfinite(run.poses[s, 0, 0]) for s in range(len(run.scans))):
         return

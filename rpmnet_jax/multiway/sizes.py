@@ -43,13 +43,13 @@ SCENE_PLANE_RESIDUAL = 0.06
 # The balanced fitness (classical.scoring.balanced_fitness) a pair edge and a global placement need where the scans
 # are a scene's and the median scan has a dominant normal direction (classical.scoring.dominant_share ≥
 # DOMINANT_SHARE: a ground that can carry the plain fitness; the whole set, as at 100 stations some scans in narrow
-# streets hold less and their wrong network answers passed). Not for objects: five views of a box hold 0.21-0.34 in one face, and their right answers
-# reach only 0.20-0.84 (partial overlap), below the half turns' 0.65-0.92.
+# streets hold less and their wrong network answers passed). Not for objects: five views of a box hold 0.21-0.34 in
+# one face, and their right answers reach only 0.20-0.84 (partial overlap), below the half turns' 0.65-0.92.
 # BALANCED_FITNESS 0.6: on the simulated site's first 10 stations (seed 0) the classical answers right within 1° and
 # 10 cm reach 0.66-0.96, the wrong ones 0.03-0.52 (seed 1, held out: right 0.44-0.94, wrong 0.08-0.53). DOMINANT_SHARE
-# 0.3: those stations' scans hold 0.34-0.54 of their points in one bucket (the ground), eight views of a closed
-# object (the tests' ring scans, whose right answers have balanced fitness 0.1-1.0, as plain) 0.10-0.24. Both
-# chosen on that data (tuning data: not held-out)
+# 0.3: those stations' scans hold 0.34-0.54 of their points in one bucket (the ground), eight views of a closed object
+# (the tests' ring scans, whose right answers have balanced fitness 0.1-1.0, as plain) 0.10-0.24. Both chosen on that
+# data (tuning data: not held-out)
 BALANCED_FITNESS = 0.6
 DOMINANT_SHARE = 0.3
 VIEWPOINTS = ("auto", "origin", "none")

@@ -15,9 +15,9 @@ Faults: a worker that dies mid-run loses only its running tasks and the results 
 scheduler runs them again on the other workers, and as the edges do not depend on where they ran, the poses are the
 same. A task that kills every worker running it stops the run with one line naming its pairs
 (:class:`PairTaskError`); a scheduler left with no worker for :data:`NO_WORKERS_TIMEOUT` seconds stops it with one
-line too (:class:`NoWorkersError`), and so does a scheduler that stops answering, the cache keeping what finished. An embedded cluster's workers size Numba's,
-BLAS's and XLA's thread pools to their own thread (:func:`worker_environment`): one worker a core, not every pool
-on every core.
+line too (:class:`NoWorkersError`), and so does a scheduler that stops answering, the cache keeping what finished.
+An embedded cluster's workers size Numba's, BLAS's and XLA's thread pools to their own thread
+(:func:`worker_environment`): one worker a core, not every pool on every core.
 """
 
 from __future__ import annotations
