@@ -90,13 +90,12 @@ def test_balanced_fitness_weighs_each_normal_direction_the_same():
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     inlier = np.r_[np.ones(900, bool), np.zeros(200, bool)]
     assert inlier.mean() == pytest.approx(900 / 1100)
-    assert scoring.balanced_fitness(normals, inlier) == pytest.approx(1 / 3)
-    assert scoring.balanced_fitness(normals, np.ones(1100, bool)) == 1.0
-    assert scoring.balanced_fitness(normals, np.zeros(1100, bool)) == 0.0
+    assert scoring.balanced_fitness(normals, np.flatnonzero(inlier)) == pytest.approx(1 / 3)
+    assert scoring.balanced_fitness(normals, np.arange(1100)) == 1.0
+    assert scoring.balanced_fitness(normals, np.zeros(0, int)) == 0.0
     few = np.tile(-up, (scoring.MIN_BUCKET - 1, 1))  # a handful of points facing down, not fitting: not counted
-    assert scoring.balanced_fitness(np.concatenate([normals, few]),
-                                    np.r_[inlier, np.zeros(len(few), bool)]) == pytest.approx(1 / 3)
-    assert scoring.balanced_fitness(np.zeros((0, 3)), np.zeros(0, bool)) == 0.0
+    assert scoring.balanced_fitness(np.concatenate([normals, few]), np.flatnonzero(inlier)) == pytest.approx(1 / 3)
+    assert scoring.balanced_fitness(np.zeros((0, 3)), np.zeros(0, int)) == 0.0
     spread = scoring._directions(scoring.NORMAL_DIRECTIONS)  # the buckets: unit, spread (no two within 25 deg)
     np.testing.assert_allclose(np.linalg.norm(spread, axis=1), 1.0)
     cos = spread @ spread.T

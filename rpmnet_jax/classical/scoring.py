@@ -72,16 +72,17 @@ def dominant_share(normals) -> float:
     return float(np.bincount(_bucket(normals)).max() / len(normals)) if len(normals) else 0.0
 
 
-def balanced_fitness(normals, inlier) -> float:
+def balanced_fitness(normals, inlier_rows) -> float:
     """Fitness with every normal direction weighing the same: the points, by their unit ``normals (N, 3)``, in
-    buckets of the nearest of :data:`NORMAL_DIRECTIONS` directions; the inlier share (``inlier (N,)`` bool) of
-    each bucket of at least :data:`MIN_BUCKET` points, averaged (0 without one). Normal-space sampling
+    buckets of the nearest of :data:`NORMAL_DIRECTIONS` directions; the inlier share (the rows ``inlier_rows``,
+    e.g. a :class:`Score`'s ``correspondences[:, 0]``) of each bucket of at least :data:`MIN_BUCKET` points, averaged (0 without one). Normal-space sampling
     (Rusinkiewicz and Levoy, "Efficient variants of the ICP algorithm", 3DIM 2001) as a score: a plane that
     holds most of the points (a scene's ground) fits under any turn about its normal and any slide along it, and
     carries plain fitness; here it is one bucket among the surfaces that fix the pose."""
-    inlier = np.asarray(inlier, bool)
-    if len(inlier) == 0:
+    if len(normals) == 0:
         return 0.0
+    inlier = np.zeros(len(normals), bool)
+    inlier[np.asarray(inlier_rows, np.int64)] = True
     bucket = _bucket(normals)
     counts = np.bincount(bucket, minlength=NORMAL_DIRECTIONS)
     hits = np.bincount(bucket, weights=inlier, minlength=NORMAL_DIRECTIONS)

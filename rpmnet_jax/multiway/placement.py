@@ -36,10 +36,8 @@ def place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, ti
                                 init="global", max_correspondence_distance=max_dist, seed=seed)
             residuals = scoring.plane_fit(scans[s].points, model, model_normals, a.transform,
                                           a.correspondences).residuals
-            inlier = np.zeros(len(scans[s].points), bool)
-            inlier[a.correspondences[:, 0]] = True
             if accept(a.fitness, np.median(np.abs(residuals)) if len(residuals) else np.inf,
-                      scoring.balanced_fitness(scans[s].normals, inlier)):
+                      scoring.balanced_fitness(scans[s].normals, a.correspondences[:, 0])):
                 poses[s] = a.transform
                 doubtful += [s] if a.likely_wrong else []  # reported; the robust graph still decides on the edges
                 edges += [edges_lib.measure(scans, s, o, np.linalg.inv(poses[o]) @ poses[s], max_dist, "global")

@@ -81,10 +81,8 @@ def measure(scans, i: int, j: int, transform: np.ndarray, max_distance: float, s
     close = score.correspondences[score.distances <= (plane_distance or max_distance)]
     fit = scoring.plane_fit(src.points, ref.points, ref.normals, transform, close)
     residual = float(np.median(np.abs(fit.residuals))) if len(fit.residuals) else float("inf")
-    inlier = np.zeros(len(src.points), bool)
-    inlier[score.correspondences[:, 0]] = True
     return Edge(int(i), int(j), np.asarray(transform, np.float64), score.fitness, score.inlier_rmse, fit.information,
-                residual, stage, balanced_fitness=scoring.balanced_fitness(src.normals, inlier))
+                residual, stage, balanced_fitness=scoring.balanced_fitness(src.normals, score.correspondences[:, 0]))
 
 
 def icp_edge(scans, i: int, j: int, start: np.ndarray, max_distance: float, rng: np.random.Generator, *,
