@@ -161,7 +161,8 @@ def test_a_scheduler_without_workers_stops_in_one_line_within_the_timeout(cluste
                                                           cluster.address, "--out-poses", str(tmp_path / "p.conf")])
     waited, err = time.monotonic() - start, capsys.readouterr().err
     assert rc == 1 and len(err.strip().splitlines()) == 1, err
-    assert f"no Dask workers at {cluster.address} for 2 s, 3 of 3 pairs of this stage still to run; no cache" in err
+    assert f"no Dask workers at {cluster.address} for 2 s, 3 of 3 scans still to prepare; no cache" in err  # the
+    # scans are prepared on the workers too
     assert 2 <= waited < 15  # the timeout, not a hang
     assert not (tmp_path / "p.conf").exists()
 

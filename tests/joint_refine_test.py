@@ -106,12 +106,20 @@ def test_the_normal_equations_hold_only_the_pairs_blocks():
     scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
     pairs = [(0, 1), (1, 2), (2, 3)]  # scan 4 in none
     start = _perturbed(truth, 1.0, 0.001, seed=2)
-    directed, rows = joint_refine._samples(scans, pairs, 200, seed=0)
+    directed = [(i, j) for a, b in pairs for i, j in ((a, b), (b, a))]
     centre = np.mean([p[:3, 3] for p in start], axis=0)
-    blocks, g, residuals = joint_refine._normal_equations(scans, start, directed, rows, centre,
-                                                          sizes.DISTANCE_VOXELS * voxel)
+    args = (start, 200, 0, centre, sizes.DISTANCE_VOXELS * voxel)
+    blocks, g, residuals = joint_refine._normal_equations([joint_refine.pair_equations(scans, directed, *args)], 5)
     assert set(blocks) == {(s, s) for s in range(4)} | {(i, j) for a, b in pairs for i, j in ((a, b), (b, a))}
-    assert g.shape == (5, 6) and len(residuals) > 0
+    assert g.shape == (5, 6) and len(residuals) > 0 and not g[4].any()
+    # in shares (tasks on a cluster, each with only its scans), summed: the same equations
+    shares = [joint_refine.pair_equations({s: scans[s] for p in part for s in p}, part, *args)
+              for part in (directed[:1], directed[1:4], directed[4:])]
+    in_shares = joint_refine._normal_equations(shares, 5)
+    assert set(in_shares[0]) == set(blocks) and np.array_equal(in_shares[2], residuals)
+    for key, block in blocks.items():
+        np.testing.assert_allclose(in_shares[0][key], block, rtol=1e-12, atol=1e-12 * np.abs(block).max())
+    np.testing.assert_allclose(in_shares[1], g, rtol=1e-12, atol=1e-12 * np.abs(g).max())
     for (i, j), block in blocks.items():
         np.testing.assert_allclose(block, blocks[j, i].T, rtol=0, atol=1e-12 * np.abs(block).max())
     dense_step = _dense_step(blocks, g, [1, 2, 3], 5)

@@ -63,7 +63,8 @@ def test_align_scans_without_refinement_keeps_the_pair_edges(classical):
     stage = "classical" if classical else "network"
     assert result.edges and {e.stage for e in result.edges} == {stage} and "refine" not in result.timings
     assert ("network" in result.timings) == (not classical)  # the classical edges connect the three scans
-    assert reports == [(f"{stage} edges", k, 3) for k in (1, 2, 3)]  # three scans: three candidate pairs, in turn
+    assert reports == [(s, k, 3) for s in ("preparing scans", f"{stage} edges") for k in (1, 2, 3)]  # three scans,
+    # then their three candidate pairs, in turn
     with pytest.raises(ValueError, match="at least two scans"):
         rpmnet_jax.align_scans(clouds[:1])
 

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling
+from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, threads
 from rpmnet_jax.multiway import candidate_pairs, sizes
 from rpmnet_jax.pair_edges import edges as edges_lib
 
@@ -27,10 +27,13 @@ class Prepared(NamedTuple):
     scene: bool  # scans seen from inside a scene (sizes.voxel)
 
 
-def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="auto") -> Prepared:
+def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="auto", engine=None,
+                  tick=None) -> Prepared:
     """The scans ``clouds[i] (N_i, 3)`` (``normals``: ``None`` or one ``(N_i, 3)`` or ``None`` per scan) moved by
     ``-shift (3,)``, at ``voxel_size`` (``None``: :func:`~rpmnet_jax.multiway.sizes.voxel`'s default), their
-    sensors from ``viewpoints`` (:func:`~rpmnet_jax.multiway.sizes.sensors`)."""
+    sensors from ``viewpoints`` (:func:`~rpmnet_jax.multiway.sizes.sensors`); each scan made ready by
+    :func:`prepare_scan`, by ``engine`` when given (:meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.prepare`:
+    a task a scan on a cluster), ``tick(done, total)`` as they finish."""
     if len(clouds) < 2:
         raise ValueError(f"need at least two scans, got {len(clouds)}")
     normals = [None] * len(clouds) if normals is None else list(normals)
@@ -40,16 +43,26 @@ def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="au
     seen_from = [None if v is None else v - shift for v in sizes.sensors([p for p, _ in cleaned], viewpoints)]
     cleaned = [(p - shift, n) for p, n in cleaned]
     voxel, scene = sizes.voxel([p for p, _ in cleaned], seen_from, voxel_size)
-    scans = []
-    for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from)):
-        p, n = sampling.voxel_downsample(p, n, voxel)
-        if len(p) < MIN_VOXEL_POINTS:
-            raise ValueError(f"scan {i}: {len(p)} points after voxel downsampling at {voxel:.4g}; "
-                             "a smaller voxel size is needed")
-        if n is None:
-            n = normals_lib.estimate_normals(p) if sensor is None else normals_lib.facing(p, sensor)
-        scans.append(edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=i))
+    jobs = [(p, n, sensor, voxel, i) for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from))]
+    if engine is not None:
+        scans = engine.prepare(prepare_scan, jobs, tick)
+    else:
+        scans = [prepare_scan(*job) for job in jobs]
     return Prepared(scans, voxel, seen_from, scene)
+
+
+@threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the compiled loops
+def prepare_scan(points, normals, sensor, voxel: float, index: int) -> edges_lib.Scan:
+    """Scan ``index`` (cleaned ``points (N, 3)``, ``normals (N, 3)`` or ``None``, its ``sensor (3,)`` or ``None``)
+    voxel-downsampled at ``voxel``, with normals (averaged per voxel, else estimated: facing the sensor, else away
+    from the centroid) and the FPFH of its keypoints (drawn with seed ``index``)."""
+    p, n = sampling.voxel_downsample(points, normals, voxel)
+    if len(p) < MIN_VOXEL_POINTS:
+        raise ValueError(f"scan {index}: {len(p)} points after voxel downsampling at {voxel:.4g}; "
+                         "a smaller voxel size is needed")
+    if n is None:
+        n = normals_lib.estimate_normals(p) if sensor is None else normals_lib.facing(p, sensor)
+    return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=index)
 
 
 def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int) -> list:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from rpmnet_jax.geometry import threads
 from rpmnet_jax.pair_edges import edges as edges_lib
 from rpmnet_jax.pose_graphs import joint_refine
 from rpmnet_jax.ops import se3
@@ -55,12 +56,20 @@ def icp_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_,
     return [e for e in engine.refine_edges(pairs, starts, round_, tick) if keep(e)], len(pairs)
 
 
-def jointly(scans, poses, placed, max_dist, options, keep, tick) -> tuple:
-    """``refine="joint"``: the overlapping pairs' points refine all poses together, then each pair is measured:
-    (poses, kept edges, the other edges)."""
+def jointly(engine, scans, poses, placed, max_dist, options, keep, tick) -> tuple:
+    """``refine="joint"``: the overlapping pairs' points refine all poses together, then each pair is measured, the
+    work on the pairs done by ``engine`` (:meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.map_pairs`: on a
+    cluster, tasks): (poses, kept edges, the other edges)."""
     o = options
     pairs = overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)
-    poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed, tick=tick).poses
-    measured = [edges_lib.measure(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist, "joint")
-                for i, j in pairs]
+    poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed, tick=tick,
+                                        map_pairs=engine.map_pairs).poses
+    chunks = [pairs[k:k + joint_refine.CHUNK] for k in range(0, len(pairs), joint_refine.CHUNK)]
+    measured = [e for share in engine.map_pairs(measure_pairs, chunks, poses, max_dist) for e in share]
     return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]
+
+
+@threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the compiled loops
+def measure_pairs(scans, pairs, poses, max_dist) -> list:
+    """The edges ``i → j`` of ``pairs [(i, j), ...]`` measured at ``poses`` (indexable by scan; ``scans`` too)."""
+    return [edges_lib.measure(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist, "joint") for i, j in pairs]

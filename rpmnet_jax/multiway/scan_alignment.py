@@ -159,8 +159,12 @@ class _Run:
         return [s for s in range(len(self.scans)) if np.isfinite(self.poses[s, 0, 0])]
 
     def tick(self, stage: str):
-        """``tick(done, total)`` of ``stage``: passed on to ``progress``, if any."""
-        return lambda done, total: self.progress(stage, done, total) if self.progress is not None else None
+        return _ticker(self.progress, stage)
+
+
+def _ticker(progress, stage: str):
+    """``tick(done, total)`` of ``stage``: passed on to ``progress``, if any."""
+    return lambda done, total: progress(stage, done, total) if progress is not None else None
 
 
 def _prepare(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, progress) -> _Run:
@@ -168,7 +172,8 @@ def _prepare(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, pr
     clock = stopwatch.Stopwatch()
     with clock.stage("prepare"):
         shift = offsets.common_shift(clouds)
-        prepared = preparation.prepare_scans(clouds, normals, o.voxel_size, shift, viewpoints)
+        prepared = preparation.prepare_scans(clouds, normals, o.voxel_size, shift, viewpoints, engine,
+                                             _ticker(progress, "preparing scans"))
         max_dist = (float(o.max_correspondence_distance) if o.max_correspondence_distance is not None
                     else sizes.DISTANCE_VOXELS * prepared.voxel)
         plane_bar = o.max_plane_residual if o.max_plane_residual is not None else sizes.plane_residual(prepared.scene)
@@ -270,7 +275,7 @@ def _refine(run: _Run) -> None:
     if o.refine == "joint" and len(placed) > 1:
         with run.clock.stage("refine"):
             run.poses, run.edges, run.refine_rejected = refinement.jointly(
-                run.scans, run.poses, placed, run.max_dist, o, keep, run.tick("joint refinement stages"))
+                run.engine, run.scans, run.poses, placed, run.max_dist, o, keep, run.tick("joint refinement stages"))
             run.counts["refine"] = len(run.edges) + len(run.refine_rejected)
     if o.refine == "none" and run.global_edges:
         with run.clock.stage("graph"):

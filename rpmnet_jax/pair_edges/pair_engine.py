@@ -1,6 +1,8 @@
-"""The pair registrations of :func:`rpmnet_jax.align_scans` as tasks: in this process, or on a Dask cluster (an
-embedded ``LocalCluster`` of worker processes, or a running scheduler), each result kept in a
-:class:`~rpmnet_jax.pair_edges.pair_cache.PairCache` when one is given.
+"""The work of :func:`rpmnet_jax.align_scans` on scans and pairs as tasks: in this process, or on a Dask cluster
+(an embedded ``LocalCluster`` of worker processes, or a running scheduler). The scans are prepared there
+(:meth:`PairEngine.prepare`), the pair registrations run there, each result kept in a
+:class:`~rpmnet_jax.pair_edges.pair_cache.PairCache` when one is given, and so does other work on many pairs
+(:meth:`PairEngine.map_pairs`: the joint refinement's normal equations).
 
 Tasks are pure functions of the scans, the pairs, the settings and the seed: a pair's random sample comes
 from its own generator, seeded by ``(seed, stage, i, j)``, so its edge does not depend on which worker ran it,
@@ -104,6 +106,11 @@ def refine_pair(scans, i, j, start, round_, settings: Settings) -> list:
                                          num_points=s.refine_points, schedule=icp.REFINE_EDGE)])]
 
 
+def _share(fn, scans, chunk, args):
+    """A task of :meth:`PairEngine.map_pairs`: ``fn(scans, chunk, *args)``."""
+    return fn(scans, chunk, *args)
+
+
 def _use_compile_cache(folder) -> None:
     """In a worker: JAX's persistent compilation cache in ``folder``, unless the worker has its own (or none
     can be made there)."""
@@ -187,7 +194,7 @@ class PairEngine:
     def __init__(self, scheduler=None, cache=None):
         self.scheduler = check_scheduler(scheduler)
         self.cache = cache if cache is None or isinstance(cache, pair_cache.PairCache) else pair_cache.PairCache(cache)
-        self.client = self._cluster = self._scan_futures = self._params_future = None
+        self.client = self._cluster = self._scan_futures = self._params_future = self._prepared = None
         self._own_client = False
 
     def __enter__(self):
@@ -216,7 +223,7 @@ class PairEngine:
             self.client.close()
         if self._cluster is not None:
             self._cluster.close()
-        self.client = self._cluster = self._scan_futures = self._params_future = None
+        self.client = self._cluster = self._scan_futures = self._params_future = self._prepared = None
 
     def bind(self, scans, params, cfg, settings: Settings) -> None:
         """The scans (:class:`~rpmnet_jax.pair_edges.edges.Scan`), network (``params``; ``None``: the shipped
@@ -225,8 +232,57 @@ class PairEngine:
         self.scans, self.params, self.cfg, self.settings = scans, params, cfg, settings
         self._digests = [pair_cache.scan_digest(s) for s in scans] if self.cache is not None else None
         self._params_digest = None
-        if self.client is not None:
+        if self.client is not None and scans is not self._prepared:  # scans prepared here are there already
             self._scan_futures = self._send(list(scans))
+
+    def prepare(self, fn, jobs, tick=None) -> list:
+        """``[fn(*job) for job in jobs]``: the scans (:class:`~rpmnet_jax.pair_edges.edges.Scan`) made ready for
+        pairing, one task a scan; ``tick(done, total)`` as they finish. On a cluster each stays on its worker for
+        the pair tasks (a list :meth:`bind` then sends nowhere again; made again from its job if its worker dies)
+        and comes here too."""
+        if self.client is None:
+            scans = []
+            for job in jobs:
+                scans.append(fn(*job))
+                if tick is not None:
+                    tick(len(scans), len(jobs))
+            return scans
+        import dask
+
+        with dask.config.set({"distributed.admin.large-graph-warning-threshold": "64GB"}):  # the clouds: meant
+            submitted = [(self._submit(fn, *job), f"scan {k}") for k, job in enumerate(jobs)]
+        scans = self._in_order(submitted, "scans still to prepare", tick)
+        self._scan_futures, self._prepared = [future for future, _ in submitted], scans
+        return scans
+
+    def map_pairs(self, fn, chunks, *args) -> list:
+        """``[fn(scans, chunk, *args) for chunk in chunks]`` (``chunks``: lists of pairs ``(i, j)``) with the bound
+        scans, in this process or a task a chunk on the cluster (there ``scans`` holds only the chunk's, by index):
+        work on many pairs that needs no cache (a joint refinement's normal equations, the final measurements)."""
+        if self.client is None:
+            return [fn(self.scans, chunk, *args) for chunk in chunks]
+        shared = self._send([args])[0]  # once, not with every task
+        submitted = []
+        for chunk in chunks:
+            scans = {s: self._scan_futures[s] for s in sorted({s for p in chunk for s in p})}
+            submitted.append((self._submit(_share, fn, scans, chunk, shared), f"pairs {[tuple(p) for p in chunk]}"))
+        return self._in_order(submitted, f"tasks of {fn.__name__} still to run")
+
+    def _in_order(self, submitted, what: str, tick=None) -> list:
+        """The results of ``submitted [(future, label), ...]`` in that order (a task submitted twice runs once),
+        ``tick(done, total)`` as they finish; ``what`` is left when a run stops ("scans still to prepare")."""
+        positions = collections.defaultdict(list)
+        for k, (future, _) in enumerate(submitted):
+            positions[future.key].append(k)
+        unique = list(dict((future.key, (future, label)) for future, label in submitted).values())
+        out, done = [None] * len(submitted), [0]
+        for future, value in self._gather(unique, lambda: f"{len(submitted) - done[0]} of {len(submitted)} {what}"):
+            for k in positions[future.key]:
+                out[k] = value
+            done[0] += len(positions[future.key])
+            if tick is not None:
+                tick(done[0], len(submitted))
+        return out
 
     def _bind_network(self) -> None:
         """Loads the shipped model if no parameters were given, digests them for the cache, sends them to the
@@ -331,57 +387,76 @@ class PairEngine:
                     finished(fn(self.scans, *args))
                     advance()
         else:
-            import dask.base
-            import distributed
-
-            futures, needed = [], {}
+            submitted = []
             for fn, args, needs in tasks:
                 scans = {s: self._scan_futures[s] for s in sorted({s for p in needs for s in p})}
                 args = tuple(self._params_future if a is _PARAMS else a for a in args)
                 extra = {"compile_cache": self._compile_cache} if fn is network_chunk else {}
-                key = f"{fn.__name__}-{dask.base.tokenize(fn, scans, *args, **extra)}"  # named as its function
-                futures.append(self.client.submit(_logged, fn, scans, *args, key=key, **extra))
-                needed[futures[-1].key] = needs
-            results, workers = distributed.as_completed(futures), _Workers(self.client)
-            while not results.is_empty():
-                batch = results.next_batch(block=False)
-                if not batch:  # none finished: is there still a worker to run them?
-                    if workers.gone_for() >= NO_WORKERS_TIMEOUT:
-                        raise NoWorkersError(self._no_workers(total - done[0], total))
-                    time.sleep(0.02)  # as_completed's own wait polls every 0.1 s
-                for future in batch:
-                    try:
-                        new = future.result(timeout=RESULT_TIMEOUT)
-                    except distributed.KilledWorker as e:  # the scheduler gave up on it: name the pairs, one line
-                        raise PairTaskError(self._killer(future.key, needed, edges)) from e
-                    except distributed.TimeoutError:  # its result died with its worker: it runs again elsewhere
-                        results.add(future)
-                        continue
-                    except concurrent.futures.CancelledError as e:  # the client cancels every task when it loses
-                        # the scheduler (and gives up reconnecting after CONNECT_TIMEOUT)
-                        raise PairTaskError(f"the Dask scheduler at {self.client.scheduler.address} stopped answering "
-                                            f"with {total - done[0]} of {total} pairs of this stage still to run; "
-                                            f"{self._kept('the scheduler is back')}") from e
-                    finished(new)
-                    advance(len(new))
+                submitted.append((self._submit(fn, scans, *args, **extra), f"pairs {[tuple(p) for p in needs]}"))
+            for _, new in self._gather(submitted, lambda: f"{total - done[0]} of {total} pairs of this stage still to "
+                                                          "run"):
+                finished(new)
+                advance(len(new))
         return [edges[tuple(p)] for p in pairs]
 
-    def _killer(self, key, needed: dict, edges: dict) -> str:
+    def _submit(self, fn, *args, **kwargs):
+        """The future of the task ``fn(*args, **kwargs)`` on the cluster, started through :func:`_logged`, its key
+        named as its function and determined by its arguments."""
+        import dask.base
+
+        key = f"{fn.__name__}-{dask.base.tokenize(fn, *args, **kwargs)}"
+        return self.client.submit(_logged, fn, *args, key=key, **kwargs)
+
+    def _gather(self, submitted, left):
+        """Yields ``(future, result)`` of ``submitted [(future, label), ...]`` as they finish (a result lost with
+        its worker is awaited again: the scheduler runs the task elsewhere). Stops with one line: a task the
+        scheduler gave up on (:class:`PairTaskError` naming its label), no worker for :data:`NO_WORKERS_TIMEOUT`
+        seconds (:class:`NoWorkersError`), a scheduler that stopped answering; ``left()`` says what was left to
+        run ("3 of 10 pairs of this stage still to run")."""
+        import distributed
+
+        labels = {future.key: label for future, label in submitted}
+        unfinished = set(labels)
+        results, workers = distributed.as_completed([future for future, _ in submitted]), _Workers(self.client)
+        while not results.is_empty():
+            batch = results.next_batch(block=False)
+            if not batch:  # none finished: is there still a worker to run them?
+                if workers.gone_for() >= NO_WORKERS_TIMEOUT:
+                    raise NoWorkersError(self._no_workers(left()))
+                time.sleep(0.02)  # as_completed's own wait polls every 0.1 s
+            for future in batch:
+                if workers.gone_for() >= NO_WORKERS_TIMEOUT:  # each lost result costs RESULT_TIMEOUT: not all of them
+                    raise NoWorkersError(self._no_workers(left()))
+                try:
+                    value = future.result(timeout=RESULT_TIMEOUT)
+                except distributed.KilledWorker as e:  # the scheduler gave up on it: name the task, one line
+                    raise PairTaskError(self._killer(future.key, labels, unfinished)) from e
+                except distributed.TimeoutError:  # its result died with its worker: it runs again elsewhere
+                    results.add(future)
+                    continue
+                except concurrent.futures.CancelledError as e:  # the client cancels every task when it loses the
+                    # scheduler (and gives up reconnecting after CONNECT_TIMEOUT)
+                    raise PairTaskError(f"the Dask scheduler at {self.client.scheduler.address} stopped answering "
+                                        f"with {left()}; {self._kept('the scheduler is back')}") from e
+                unfinished.discard(future.key)
+                yield future, value
+
+    def _killer(self, key, labels: dict, unfinished: set) -> str:
         """The one line of a run stopped by a task that killed its workers. The scheduler gives up on every task
         that was on a worker as it died too often, those queued there beside the killer as well: the killer is the
-        unfinished task that started most often (:func:`_logged`); ``key`` (the task given up on) when none did."""
+        unfinished task that started most often (:func:`_logged`); ``key`` (the task given up on) when none did.
+        ``labels``: what each task's key works on ("pairs [(0, 1)]")."""
         starts = collections.Counter(key for _, key in self.client.get_events(STARTED))
-        unfinished = [k for k, pairs in needed.items() if any(tuple(p) not in edges for p in pairs)]
         killer = max(unfinished, key=lambda k: starts[k], default=key)
         killer = killer if starts[killer] >= 2 else key
         count = f" {starts[killer]} times" if starts[killer] >= 2 else ""
-        return (f"the task of pairs {[tuple(p) for p in needed[killer]]} killed the Dask workers that ran it{count}; "
+        return (f"the task of {labels[killer]} killed the Dask workers that ran it{count}; "
                 "the pairs finished before it are in the cache (if any)")
 
-    def _no_workers(self, left: int, total: int) -> str:
-        """The one line of a run stopped for want of workers."""
-        return (f"no Dask workers at {self.client.scheduler.address} for {NO_WORKERS_TIMEOUT:g} s, {left} of {total} "
-                f"pairs of this stage still to run; {self._kept('workers are there')}")
+    def _no_workers(self, left: str) -> str:
+        """The one line of a run stopped for want of workers, with ``left`` still to run."""
+        return (f"no Dask workers at {self.client.scheduler.address} for {NO_WORKERS_TIMEOUT:g} s, {left}; "
+                f"{self._kept('workers are there')}")
 
     def _kept(self, when: str) -> str:
         """What a stopped run leaves for the next one, which can start ``when``."""

@@ -17,7 +17,7 @@ from scipy import sparse
 from scipy.sparse import linalg as sparse_linalg
 
 from rpmnet_jax.classical import icp
-from rpmnet_jax.geometry import sampling
+from rpmnet_jax.geometry import sampling, threads
 from rpmnet_jax.ops import se3
 
 GATES = (1.0, 0.5, 0.25)  # the stages' correspondence gates, × max_distance (Tukey's scale at each); measured on
@@ -27,6 +27,7 @@ GATES = (1.0, 0.5, 0.25)  # the stages' correspondence gates, × max_distance (T
 GATE_SIGMAS = 3.0  # no gate below this many robust standard deviations of the last step's residuals (noisy scans)
 MAX_ITERATIONS = 10  # per stage
 POINTS = 1000  # source points per directed pair
+CHUNK = 32  # directed pairs per share of the normal equations (a task on a cluster)
 DAMPING = 1e-10  # Levenberg's damping, × the mean diagonal of the normal equations: a guard against a singular
 # system only. At 1e-6 rotations about the far centre of a long path dominated the mean and held back its slow
 # bending: 300 / 1,000 scans on a path (benchmarks/joint_refine_scaling.py) ended 0.47 / 0.98 deg off. At 1e-10 the
@@ -40,24 +41,22 @@ class Refinement(NamedTuple):
     converged: bool  # every stage stopped on its tolerance before MAX_ITERATIONS
 
 
-def _samples(scans, pairs, num_points, seed):
-    """Per directed pair ``(i, j)`` (both directions of each of ``pairs``), seeded random rows of scan ``i``."""
-    directed = [(i, j) for a, b in pairs for i, j in ((a, b), (b, a))]
-    rows = [sampling.sample_indices(np.random.default_rng([seed, i, j]), len(scans[i].points), num_points)
-            for i, j in directed]
-    return directed, rows
+def _rows(scans, i: int, j: int, num_points: int, seed: int) -> np.ndarray:
+    """The seeded random rows of scan ``i`` that directed pair ``(i, j)`` uses (the same wherever it runs)."""
+    return sampling.sample_indices(np.random.default_rng([seed, i, j]), len(scans[i].points), num_points)
 
 
-def _normal_equations(scans, poses, directed, rows, centre, gate):
-    """``(blocks, g (S, 6), residuals (C,))`` of the Tukey-weighted point-to-plane residuals of every directed
-    pair at ``poses``, gate ``gate`` (left twists about ``centre``): ``blocks`` maps ``(i, j)`` to the ``(6, 6)``
-    block of the normal equations' matrix at scans ``i, j``, held only where it can be non-zero (the diagonal of
-    the scans in a pair and both orders of each pair): O(pairs) memory, not O(S²)."""
-    blocks = {}
-    g = np.zeros((len(scans), 6))
-    residuals = []
-    for (i, j), sample in zip(directed, rows):
-        x = se3.apply(poses[i], scans[i].points[sample])  # (M, 3) in the common frame
+@threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the k-d tree's loops
+def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, gate: float):
+    """``(blocks, g, residuals (C,))`` of the Tukey-weighted point-to-plane residuals of the directed pairs
+    ``directed [(i, j), ...]`` (up to ``num_points`` seeded rows of scan ``i`` against scan ``j``'s tangent
+    planes) at ``poses`` (indexable by scan), gate ``gate`` (left twists about ``centre``): ``blocks`` maps
+    ``(i, j)`` to the ``(6, 6)`` block of the normal equations' matrix at scans ``i, j``, held only where it can be
+    non-zero (the diagonal of the scans in a pair and both orders of each pair), ``g`` maps a scan to its ``(6,)``
+    gradient: O(pairs) memory, not O(S²). ``scans`` need hold only those of ``directed`` (a task's share)."""
+    blocks, g, residuals = {}, {}, []
+    for i, j in directed:
+        x = se3.apply(poses[i], scans[i].points[_rows(scans, i, j, num_points, seed)])  # (M, 3) common frame
         in_j = se3.apply(np.linalg.inv(poses[j]), x)
         dist, idx = scans[j].tree.query(in_j, distance_upper_bound=gate)
         near = np.isfinite(dist)
@@ -73,11 +72,21 @@ def _normal_equations(scans, poses, directed, rows, centre, gate):
         wi, wj = ji * w[:, None], jj * w[:, None]
         for key, block in (((i, i), ji.T @ wi), ((j, j), jj.T @ wj), ((i, j), ji.T @ wj), ((j, i), jj.T @ wi)):
             blocks[key] = blocks[key] + block if key in blocks else block
-        g[i] += wi.T @ r
-        g[j] += wj.T @ r
+        for s, part in ((i, wi.T @ r), (j, wj.T @ r)):
+            g[s] = g[s] + part if s in g else part
         residuals.append(r)
-    residuals = np.concatenate(residuals) if residuals else np.zeros(0)
-    return blocks, g, residuals
+    return blocks, g, np.concatenate(residuals) if residuals else np.zeros(0)
+
+
+def _normal_equations(shares, num_scans: int):
+    """``(blocks, g (S, 6), residuals)``: :func:`pair_equations`' ``shares`` summed in their order."""
+    blocks, g = {}, np.zeros((num_scans, 6))
+    for share_blocks, share_g, _ in shares:
+        for key, block in share_blocks.items():
+            blocks[key] = blocks[key] + block if key in blocks else block
+        for s, part in share_g.items():
+            g[s] += part
+    return blocks, g, np.concatenate([r for _, _, r in shares]) if shares else np.zeros(0)
 
 
 def _twists(blocks, g, used):
@@ -114,20 +123,30 @@ def _step(twist, centre):
     return step
 
 
+def in_process(scans):
+    """``map_pairs(fn, chunks, *args)`` of :func:`refine_jointly` in this process."""
+    return lambda fn, chunks, *args: [fn(scans, chunk, *args) for chunk in chunks]
+
+
 def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num_points: int = POINTS,
                    gates=GATES, max_iterations: int = MAX_ITERATIONS, tolerance: float = 1e-4, seed: int = 0,
-                   tick=None) -> Refinement:
+                   tick=None, map_pairs=None) -> Refinement:
     """Refines ``poses (S, 4, 4)`` of :class:`~rpmnet_jax.pair_edges.edges.Scan` s over the overlapping ``pairs
     [(i, j), ...]``: up to ``num_points`` points of each scan of a pair against the other's tangent planes,
     both directions; ``gates`` × ``max_distance`` in turn (never below ``GATE_SIGMAS`` robust standard
     deviations of the residuals), up to ``max_iterations`` steps each, a stage ending when no pose moves by
     more than ``tolerance`` (radians; × the scans' radius in translation). Scan ``anchor`` stays where it is;
-    scans in no pair stay too. ``tick(done, total)`` after each stage (``total``: the number of stages)."""
+    scans in no pair stay too. ``tick(done, total)`` after each stage (``total``: the number of stages).
+    ``map_pairs(fn, chunks, *args)``: ``[fn(scans, chunk, *args) for chunk in chunks]`` anywhere (a cluster:
+    :meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.map_pairs`); the normal equations are summed over
+    shares of ``CHUNK`` directed pairs in a fixed order, so the poses do not depend on where the shares ran."""
     poses = np.array(poses, np.float64)
     pairs = [tuple(int(s) for s in p) for p in pairs]
     if not pairs:
         return Refinement(poses, 0, True)
-    directed, rows = _samples(scans, pairs, num_points, seed)
+    map_pairs = map_pairs or in_process(scans)
+    directed = [(i, j) for a, b in pairs for i, j in ((a, b), (b, a))]
+    chunks = [directed[k:k + CHUNK] for k in range(0, len(directed), CHUNK)]
     used = sorted({s for p in pairs for s in p} - {anchor})
     placed = np.concatenate([se3.apply(poses[s], scans[s].points[:: max(1, len(scans[s].points) // 200)])
                              for s in sorted({s for p in pairs for s in p})])
@@ -139,7 +158,8 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
         for _ in range(max_iterations):
             total += 1
             gate = max(scale * max_distance, GATE_SIGMAS * sigma)
-            blocks, g, residuals = _normal_equations(scans, poses, directed, rows, centre, gate)
+            shares = map_pairs(pair_equations, chunks, poses, num_points, seed, centre, gate)
+            blocks, g, residuals = _normal_equations(shares, len(scans))
             if len(residuals) < 6 * len(used):
                 break
             sigma = 1.4826 * float(np.median(np.abs(residuals)))
