@@ -52,8 +52,9 @@ def scan_files(folder: str, conf: str, limit: int | None = None):
     return names, [os.path.join(folder, files[n]) for n in names], np.stack([truth[n] for n in names])
 
 
-def run_ours(paths, seed: int) -> dict:
-    """Reads ``paths`` and registers them with :func:`rpmnet_jax.align_scans` (in this process)."""
+def run_ours(paths, seed: int, scheduler=None) -> dict:
+    """Reads ``paths`` and registers them with :func:`rpmnet_jax.align_scans` (in this process; its tasks on
+    ``scheduler``, a Dask scheduler's address, when given)."""
     from rpmnet_jax.cli import runtime
 
     cache = runtime.enable_compilation_cache()  # as rpmnet-register-scans does; before JAX is imported
@@ -65,7 +66,7 @@ def run_ours(paths, seed: int) -> dict:
     t0 = time.perf_counter()
     scans = [clouds.read_cloud(p)[0] for p in paths]
     read_seconds = time.perf_counter() - t0
-    r = scan_alignment.align_scans(scans, options=options.ScanOptions(seed=seed),
+    r = scan_alignment.align_scans(scans, options=options.ScanOptions(seed=seed), scheduler=scheduler,
                                    progress=lambda stage, done, total: totals.__setitem__(stage, total))
     seconds = time.perf_counter() - t0
     return {"seconds": seconds, "read_seconds": read_seconds, "rss_after_imports_mb": base,
@@ -124,7 +125,7 @@ def score(poses, truth, clouds, scale: float) -> dict:
 def _child(a) -> int:
     _, paths, _ = scan_files(a.set, a.conf, a.limit_scans)
     if a.side == "ours":
-        record = run_ours(paths, a.seed)
+        record = run_ours(paths, a.seed, a.scheduler)
     else:
         record = run_open3d(paths, a.open3d_voxel, a.seed, a.open3d_order)
     print(json.dumps(record))
@@ -168,6 +169,7 @@ def main(argv=None) -> int:
     p.add_argument("--open3d-timeout", type=float, default=None,
                    help="stop Open3D's run after this many seconds (its record says how many pairs it had done)")
     p.add_argument("--side", choices=("ours", "open3d"), default=None, help="(internal) one side, in this process")
+    p.add_argument("--scheduler", default=None, help="(internal) ours: the Dask scheduler's address")
     a = p.parse_args(argv)
     if a.side:
         return _child(a)
