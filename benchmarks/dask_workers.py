@@ -42,16 +42,20 @@ class Processes:
         quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
         self.procs = [subprocess.Popen([os.path.join(bin_dir, "dask"), "scheduler", "--host", "127.0.0.1", "--port",
                                         "0", "--no-dashboard", "--scheduler-file", file], **quiet)]
-        deadline = time.time() + 60
-        while not os.path.exists(file) and time.time() < deadline:
-            time.sleep(0.1)
-        time.sleep(0.2)  # the file is written whole, then read
-        self.address = json.load(open(file))["address"]
-        self.procs += [subprocess.Popen([os.path.join(bin_dir, "dask"), "worker", "--nthreads", "1", "--no-nanny",
-                                         "--no-dashboard", "--name", f"w{k}", "--scheduler-file", file], **quiet)
-                       for k in range(workers)]
-        with self.client() as client:
-            client.wait_for_workers(workers, timeout=120)
+        try:  # a scheduler or worker that does not come up leaves no process behind
+            deadline = time.time() + 60
+            while not os.path.exists(file) and time.time() < deadline:
+                time.sleep(0.1)
+            time.sleep(0.2)  # the file is written whole, then read
+            self.address = json.load(open(file))["address"]
+            self.procs += [subprocess.Popen([os.path.join(bin_dir, "dask"), "worker", "--nthreads", "1", "--no-nanny",
+                                             "--no-dashboard", "--name", f"w{k}", "--scheduler-file", file], **quiet)
+                           for k in range(workers)]
+            with self.client() as client:
+                client.wait_for_workers(workers, timeout=120)
+        except BaseException:
+            self.close()
+            raise
 
     def client(self):
         import distributed

@@ -135,7 +135,8 @@ def test_every_worker_gone_stops_in_one_line_the_cache_keeps_what_finished_and_t
     waited = time.monotonic() - killed[0]
     err = capsys.readouterr().err
     kept = [f for f in os.listdir(cache) if f.endswith(".npz")]
-    summary = (f"killed both workers at {reports[0][1]} of {reports[0][2]} pairs; stopped {waited:.1f} s later with "
+    first = next(r for r in reports if r[0] == STAGE)
+    summary = (f"killed both workers at {first[1]} of {first[2]} pairs; stopped {waited:.1f} s later with "
                f"{len(kept)} results kept: {err.strip()}")
     assert rc == 1 and len(err.strip().splitlines()) == 1, err
     assert re.search(rf"no Dask workers at {cluster.address} for 3 s, \d of 10 pairs of this stage still to run; "
@@ -167,20 +168,23 @@ def test_a_scheduler_without_workers_stops_in_one_line_within_the_timeout(cluste
     assert not (tmp_path / "p.conf").exists()
 
 
-def test_a_worker_killed_mid_run_gives_the_in_process_poses(cluster, random_weights):
+@pytest.mark.parametrize("stage", [STAGE, "joint refinement stages"])
+def test_a_worker_killed_mid_run_gives_the_in_process_poses(cluster, random_weights, stage):
+    """Killed when the first pair is back (nine running or queued), or after the joint refinement's first stage
+    (its shares of normal equations run on the workers): the scans the worker had prepared are made again."""
     workers = cluster.add_workers(2)
     clouds, _ = ring_scans(5)
     expected = rpmnet_jax.align_scans(clouds, options=OPTIONS, checkpoint=random_weights)
     killed = []
 
-    def progress(stage, done, total):  # the first pair is back, nine are running or queued
-        if stage == STAGE and not killed:
+    def progress(name, done, total):
+        if name == stage and not killed:
             _kill(workers[1:])
             killed.append(done)
 
     result = rpmnet_jax.align_scans(clouds, options=OPTIONS, checkpoint=random_weights, scheduler=cluster.address,
                                     progress=progress)
-    print(f"worker killed after {killed[0]} of 10 pairs")
+    print(f"worker killed after {killed[0]} of {stage}")
     assert killed == [1]
     with distributed.Client(cluster.address, timeout="30s") as client:
         assert list(client.nthreads().values()) == [1]  # the run finished on the other worker
@@ -217,6 +221,35 @@ def test_an_embedded_cluster_s_worker_sizes_numba_blas_and_xla_to_its_thread(mon
         counts = list(engine.client.run(_thread_counts).values())
     print(f"threads in the worker: {counts}")
     assert counts == [{"nthreads": 1, "numba": 1, "numba in a task": 1, "blas": [1], "xla": 1}]
+
+
+def _pools_in_a_task() -> dict:
+    """A pair task's view (run through ``pair_engine._logged``, as every task is) of the pools its code uses."""
+    import jax
+    import numba
+    import threadpoolctl
+
+    cpu = jax.devices("cpu")[0]
+    jax.jit(lambda a: a @ a)(jax.device_put(np.ones((64, 64), np.float32), cpu)).block_until_ready()  # XLA's pool
+    names = collections.Counter(open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task"))
+    return {"numba": numba.get_num_threads(),
+            "blas": sorted({p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"}),
+            "xla": sum(n for name, n in names.items() if "XLAEigen" in name)}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="counts threads in /proc")
+def test_a_worker_started_without_the_environment_still_sizes_its_pools_to_its_thread(monkeypatch):
+    """As a worker from ``dask ssh``, a job queue or Kubernetes: none of ``worker_environment``'s variables set, no
+    preload; each task sizes the pools to the worker's one thread before it runs (on two cores or more, each pool
+    would otherwise have a thread per core)."""
+    for name in pair_engine.worker_environment(1):
+        monkeypatch.delenv(name, raising=False)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as c, \
+            distributed.Client(c) as client:
+        cores = client.run(os.cpu_count)
+        pools = client.submit(pair_engine._logged, _pools_in_a_task, pure=False).result(timeout=120)
+    print(f"a task on a worker of one thread, {list(cores.values())[0]} cores: {pools}")
+    assert pools == {"numba": 1, "blas": [1], "xla": 1}
 
 
 KILLER = """# preloaded into a dask worker: the classical task of pair (0, 1) ends the worker's process, a moment

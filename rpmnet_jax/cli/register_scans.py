@@ -10,7 +10,7 @@ An E57 file with several scans is a scan set: each scan is named by its own name
 and have no spaces) or ``FILE.e57#i``; scans with stored poses start from them (each moved into the file's
 frame first), and the poses written are then scan -> the file's frame, the first scan keeping its stored pose.
 
-Exit codes: 0 success, 1 a Dask run that cannot finish (a pair task that kills the workers running it, or no
+Exit codes: 0 success, 1 a Dask run that cannot finish (a task that kills the workers running it, or no
 worker left for a minute: one line; ``--cache`` keeps the pairs that finished), 2 bad input or arguments (one-line
 message, nothing written).
 """
@@ -63,7 +63,7 @@ def _parser() -> argparse.ArgumentParser:
                         "(joint, default), rounds of pairwise ICP edges in a pose graph (icp), or none")
     p.add_argument("--seed", type=int, default=0, help="seed of the samplings")
     p.add_argument("--scheduler", default=None,
-                   help="run the pair registrations on Dask: 'local' (or a worker count) for worker processes on "
+                   help="run the work on scans and pairs on Dask: 'local' (or a worker count) for worker processes on "
                         "this machine, tcp://HOST:8786 for a running scheduler (default: in this process)")
     p.add_argument("--cache", default=None, metavar="DIR",
                    help="keep every finished pair result in DIR; a run again with the same DIR reuses them "

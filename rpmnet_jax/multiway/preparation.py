@@ -44,22 +44,24 @@ def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="au
     cleaned = [(p - shift, n) for p, n in cleaned]
     voxel, scene = sizes.voxel([p for p, _ in cleaned], seen_from, voxel_size)
     jobs = [(p, n, sensor, voxel, i) for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from))]
-    if engine is not None:
-        scans = engine.prepare(prepare_scan, jobs, tick)
-    else:
-        scans = [prepare_scan(*job) for job in jobs]
+    scans = engine.prepare(prepare_scan, jobs, tick) if engine is not None else [prepare_scan(*job) for job in jobs]
+    coarse = [(i, s) for i, s in enumerate(scans) if not isinstance(s, edges_lib.Scan)]
+    if coarse:  # here, not in the task: one line naming the first such scan, wherever the tasks ran
+        raise ValueError(f"scan {coarse[0][0]}: {coarse[0][1]} points after voxel downsampling at {voxel:.4g}; "
+                         "a smaller voxel size is needed")
     return Prepared(scans, voxel, seen_from, scene)
 
 
 @threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the compiled loops
-def prepare_scan(points, normals, sensor, voxel: float, index: int) -> edges_lib.Scan:
+def prepare_scan(points, normals, sensor, voxel: float, index: int):
     """Scan ``index`` (cleaned ``points (N, 3)``, ``normals (N, 3)`` or ``None``, its ``sensor (3,)`` or ``None``)
     voxel-downsampled at ``voxel``, with normals (averaged per voxel, else estimated: facing the sensor, else away
-    from the centroid) and the FPFH of its keypoints (drawn with seed ``index``)."""
+    from the centroid) and the FPFH of its keypoints (drawn with seed ``index``): an
+    :class:`~rpmnet_jax.pair_edges.edges.Scan`, or the number of points left when fewer than
+    ``MIN_VOXEL_POINTS``."""
     p, n = sampling.voxel_downsample(points, normals, voxel)
     if len(p) < MIN_VOXEL_POINTS:
-        raise ValueError(f"scan {index}: {len(p)} points after voxel downsampling at {voxel:.4g}; "
-                         "a smaller voxel size is needed")
+        return len(p)
     if n is None:
         n = normals_lib.estimate_normals(p) if sensor is None else normals_lib.facing(p, sensor)
     return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=index)

@@ -69,7 +69,7 @@ def jointly(engine, scans, poses, placed, max_dist, options, keep, tick) -> tupl
     return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]
 
 
-@threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the compiled loops
+@threads.compiled_loops()  # on a worker too: BLAS on one thread, as in this process
 def measure_pairs(scans, pairs, poses, max_dist) -> list:
     """The edges ``i → j`` of ``pairs [(i, j), ...]`` measured at ``poses`` (indexable by scan; ``scans`` too)."""
     return [edges_lib.measure(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist, "joint") for i, j in pairs]

@@ -97,7 +97,8 @@ def align_scans(clouds, normals=None, *, viewpoints="auto",
     scan in its own coordinates; estimated normals face it, and scans seen from inside get a scene's voxel.
     ``checkpoint``: as :func:`rpmnet_jax.align`'s (default the shipped model, or pass ``params``).
     ``progress``: called as ``progress(stage, done, total)`` as the long stages advance (a CLI draws bars).
-    ``scheduler``: where the pair registrations run (:mod:`rpmnet_jax.pair_edges.pair_engine`): ``None`` this
+    ``scheduler``: where the work on scans and pairs runs (:mod:`rpmnet_jax.pair_edges.pair_engine`: the scans'
+    preparation, the pair registrations, the joint refinement's shares): ``None`` this
     process, ``"local"`` or a worker count an embedded Dask ``LocalCluster``, ``"tcp://HOST:8786"`` a running
     Dask scheduler (or a ``distributed.Client``); the same poses on each. ``cache``: a folder (or
     :class:`~rpmnet_jax.pair_edges.pair_cache.PairCache`) keeping every finished pair result; a run again with
@@ -159,6 +160,7 @@ class _Run:
         return [s for s in range(len(self.scans)) if np.isfinite(self.poses[s, 0, 0])]
 
     def tick(self, stage: str):
+        """``tick(done, total)`` of ``stage`` (:func:`_ticker`)."""
         return _ticker(self.progress, stage)
 
 

@@ -2,24 +2,26 @@
 (an embedded ``LocalCluster`` of worker processes, or a running scheduler). The scans are prepared there
 (:meth:`PairEngine.prepare`), the pair registrations run there, each result kept in a
 :class:`~rpmnet_jax.pair_edges.pair_cache.PairCache` when one is given, and so does other work on many pairs
-(:meth:`PairEngine.map_pairs`: the joint refinement's normal equations).
+(:meth:`PairEngine.map_pairs`: the joint refinement's normal equations and final measurements).
 
 Tasks are pure functions of the scans, the pairs, the settings and the seed: a pair's random sample comes
 from its own generator, seeded by ``(seed, stage, i, j)``, so its edge does not depend on which worker ran it,
 in what order, or whether it ran again after a worker died. Network edges run in fixed chunks of
 ``batch_size`` pairs (one batched network call each; a chunk's composition depends only on the pair list),
-refinement edges one pair a task. The scans and the network's parameters go to the cluster once, as tasks
-that unpickle them (made again if a worker dies with them); a worker fetches those its tasks need and compiles
+refinement edges one pair a task. A scan prepared on the cluster stays on the worker that made it (made again
+from its cloud, which the scheduler keeps, if that worker dies); the network's parameters and scans passed in
+ready-made go to the cluster once, as tasks that unpickle them; a worker fetches those its tasks need and compiles
 the network once per process (through JAX's persistent compilation cache when this process has one). Results
 are collected as they finish; the pose graph stays with the caller.
 
 Faults: a worker that dies mid-run loses only its running tasks and the results not yet fetched from it; the
 scheduler runs them again on the other workers, and as the edges do not depend on where they ran, the poses are the
-same. A task that kills every worker running it stops the run with one line naming its pairs
+same. A task that kills every worker running it stops the run with one line naming its scan or pairs
 (:class:`PairTaskError`); a scheduler left with no worker for :data:`NO_WORKERS_TIMEOUT` seconds stops it with one
 line too (:class:`NoWorkersError`), and so does a scheduler that stops answering, the cache keeping what finished.
-An embedded cluster's workers size Numba's, BLAS's and XLA's thread pools to their own thread
-(:func:`worker_environment`): one worker a core, not every pool on every core.
+Every worker's tasks size Numba's, BLAS's and XLA's thread pools to the worker's threads (:func:`_size_pools`;
+an embedded cluster's workers also get :func:`worker_environment` as they start): one worker a core, not every
+pool on every core.
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ RESULT_TIMEOUT = 10.0  # seconds to fetch a finished result; past it (its worker
 THREADS_PER_WORKER = 1  # an embedded cluster's worker: one task at a time, every pool it uses this size
 NETWORK_TAG, CLASSICAL_TAG = 0, 1  # a pair's generator: (seed, tag, i, j); refinement round r: (seed, 2 + r, i, j)
 STARTED = "rpmnet_jax-pair-task-started"  # the scheduler's event topic of pair tasks starting on workers
+_sized = []  # this process's pools sized to its worker's threads (_size_pools)
 _PARAMS = object()  # stands for the network's parameters among a task's arguments (sent once, not per task)
 
 
@@ -128,21 +131,39 @@ def _use_compile_cache(folder) -> None:
 
 
 def _logged(fn, *args, **kwargs):
-    """Runs the pair task ``fn(*args, **kwargs)`` on a Dask worker, first telling the scheduler that it starts
+    """Runs the task ``fn(*args, **kwargs)`` on a Dask worker, first telling the scheduler that it starts
     (an event of topic :data:`STARTED`: the task's key), so a task that kills its workers can be told from the
     tasks queued beside it (:meth:`PairEngine._killer`)."""
     import distributed
 
     worker = distributed.get_worker()
     worker.log_event(STARTED, worker.get_current_task())
+    _size_pools(worker.state.nthreads)
     return fn(*args, **kwargs)
+
+
+def _size_pools(nthreads: int) -> None:
+    """In a worker's task, before it runs: the pools its code uses sized to the worker's ``nthreads``, however the
+    worker was started (``dask worker``, ``dask ssh``, a job queue, Kubernetes: no environment needed). XLA's CPU
+    pool (``PJRT_NPROC``, unless set: read when JAX starts its backend, so before the first network task) and BLAS
+    (threadpoolctl) once per process; Numba's in this task's thread (``numba.set_num_threads`` holds per thread).
+    Where :func:`worker_environment` applied, this changes nothing."""
+    import numba
+
+    if not _sized:
+        from threadpoolctl import threadpool_limits
+
+        os.environ.setdefault("PJRT_NPROC", str(nthreads))
+        threadpool_limits(limits=nthreads, user_api="blas")  # not as a context: it stays
+        _sized.append(nthreads)
+    numba.set_num_threads(min(nthreads, numba.config.NUMBA_NUM_THREADS))
 
 
 def worker_environment(nthreads: int) -> dict:
     """Environment variables that size a worker process's thread pools to its ``nthreads``: Numba's (read when
     Numba is imported), BLAS's (OpenBLAS, MKL, OpenMP: read when a library loads) and XLA's CPU pool
-    (``PJRT_NPROC``: read when JAX first runs). An embedded cluster's workers get them as they start; give them to
-    ``dask worker`` processes too (e.g. ``NUMBA_NUM_THREADS=1 PJRT_NPROC=1 ... dask worker --nthreads 1``)."""
+    (``PJRT_NPROC``: read when JAX first runs). An embedded cluster's workers get them as they start; any other
+    worker's tasks size the pools themselves (:func:`_size_pools`)."""
     n = str(int(nthreads))
     return {name: n for name in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
                                  "PJRT_NPROC")}
@@ -177,8 +198,8 @@ def check_scheduler(scheduler):
 
 
 class PairTaskError(RuntimeError):
-    """A pair task that the Dask scheduler gave up on (it killed every worker that ran it; the message names its
-    pairs), or a scheduler that stopped answering; the message is one line."""
+    """A task that the Dask scheduler gave up on (it killed every worker that ran it; the message names its scan
+    or pairs), or a scheduler that stopped answering; the message is one line."""
 
 
 class NoWorkersError(PairTaskError):
@@ -238,8 +259,8 @@ class PairEngine:
     def prepare(self, fn, jobs, tick=None) -> list:
         """``[fn(*job) for job in jobs]``: the scans (:class:`~rpmnet_jax.pair_edges.edges.Scan`) made ready for
         pairing, one task a scan; ``tick(done, total)`` as they finish. On a cluster each stays on its worker for
-        the pair tasks (a list :meth:`bind` then sends nowhere again; made again from its job if its worker dies)
-        and comes here too."""
+        the pair tasks (a list :meth:`bind` then sends nowhere again; made again from its job, which the scheduler
+        keeps, if its worker dies) and comes here too."""
         if self.client is None:
             scans = []
             for job in jobs:
@@ -247,11 +268,15 @@ class PairEngine:
                 if tick is not None:
                     tick(len(scans), len(jobs))
             return scans
+        import uuid
+
         import dask
 
+        run = uuid.uuid4().hex  # keys by index: hashing every raw cloud would cost the caller its time
         with dask.config.set({"distributed.admin.large-graph-warning-threshold": "64GB"}):  # the clouds: meant
-            submitted = [(self._submit(fn, *job), f"scan {k}") for k, job in enumerate(jobs)]
-        scans = self._in_order(submitted, "scans still to prepare", tick)
+            submitted = [(self._submit(fn, *job, key=f"{fn.__name__}-{k}-{run}"), f"scan {k}")
+                         for k, job in enumerate(jobs)]
+        scans = self._in_order(submitted, "scans still to prepare", "no scan was kept", tick)
         self._scan_futures, self._prepared = [future for future, _ in submitted], scans
         return scans
 
@@ -261,25 +286,27 @@ class PairEngine:
         work on many pairs that needs no cache (a joint refinement's normal equations, the final measurements)."""
         if self.client is None:
             return [fn(self.scans, chunk, *args) for chunk in chunks]
+        import dask.base
+
         shared = self._send([args])[0]  # once, not with every task
         submitted = []
         for chunk in chunks:
             scans = {s: self._scan_futures[s] for s in sorted({s for p in chunk for s in p})}
-            submitted.append((self._submit(_share, fn, scans, chunk, shared), f"pairs {[tuple(p) for p in chunk]}"))
-        return self._in_order(submitted, f"tasks of {fn.__name__} still to run")
+            key = f"{fn.__name__}-{dask.base.tokenize(fn, scans, chunk, shared)}"
+            label = f"{fn.__name__} on {len(chunk)} pairs from {tuple(chunk[0])}"
+            submitted.append((self._submit(_share, fn, scans, chunk, shared, key=key), label))
+        return self._in_order(submitted, f"tasks of {fn.__name__} still to run", "none of its results is kept")
 
-    def _in_order(self, submitted, what: str, tick=None) -> list:
-        """The results of ``submitted [(future, label), ...]`` in that order (a task submitted twice runs once),
-        ``tick(done, total)`` as they finish; ``what`` is left when a run stops ("scans still to prepare")."""
-        positions = collections.defaultdict(list)
-        for k, (future, _) in enumerate(submitted):
-            positions[future.key].append(k)
-        unique = list(dict((future.key, (future, label)) for future, label in submitted).values())
+    def _in_order(self, submitted, what: str, kept: str, tick=None) -> list:
+        """The results of ``submitted [(future, label), ...]`` (distinct keys) in that order, ``tick(done, total)``
+        as they finish; ``what`` is left when a run stops ("scans still to prepare"), ``kept`` what a task that
+        kills its workers leaves."""
+        position = {future.key: k for k, (future, _) in enumerate(submitted)}
         out, done = [None] * len(submitted), [0]
-        for future, value in self._gather(unique, lambda: f"{len(submitted) - done[0]} of {len(submitted)} {what}"):
-            for k in positions[future.key]:
-                out[k] = value
-            done[0] += len(positions[future.key])
+        for future, value in self._gather(submitted, lambda: f"{len(submitted) - done[0]} of {len(submitted)} {what}",
+                                          kept):
+            out[position[future.key]] = value
+            done[0] += 1
             if tick is not None:
                 tick(done[0], len(submitted))
         return out
@@ -399,20 +426,20 @@ class PairEngine:
                 advance(len(new))
         return [edges[tuple(p)] for p in pairs]
 
-    def _submit(self, fn, *args, **kwargs):
-        """The future of the task ``fn(*args, **kwargs)`` on the cluster, started through :func:`_logged`, its key
-        named as its function and determined by its arguments."""
+    def _submit(self, fn, *args, key=None, **kwargs):
+        """The future of the task ``fn(*args, **kwargs)`` on the cluster, started through :func:`_logged`; ``key``
+        by default named as its function and determined by its arguments."""
         import dask.base
 
-        key = f"{fn.__name__}-{dask.base.tokenize(fn, *args, **kwargs)}"
+        key = key or f"{fn.__name__}-{dask.base.tokenize(fn, *args, **kwargs)}"
         return self.client.submit(_logged, fn, *args, key=key, **kwargs)
 
-    def _gather(self, submitted, left):
+    def _gather(self, submitted, left, kept="the pairs finished before it are in the cache (if any)"):
         """Yields ``(future, result)`` of ``submitted [(future, label), ...]`` as they finish (a result lost with
         its worker is awaited again: the scheduler runs the task elsewhere). Stops with one line: a task the
         scheduler gave up on (:class:`PairTaskError` naming its label), no worker for :data:`NO_WORKERS_TIMEOUT`
         seconds (:class:`NoWorkersError`), a scheduler that stopped answering; ``left()`` says what was left to
-        run ("3 of 10 pairs of this stage still to run")."""
+        run ("3 of 10 pairs of this stage still to run"); ``kept`` what a task that kills its workers leaves."""
         import distributed
 
         labels = {future.key: label for future, label in submitted}
@@ -430,7 +457,7 @@ class PairEngine:
                 try:
                     value = future.result(timeout=RESULT_TIMEOUT)
                 except distributed.KilledWorker as e:  # the scheduler gave up on it: name the task, one line
-                    raise PairTaskError(self._killer(future.key, labels, unfinished)) from e
+                    raise PairTaskError(self._killer(future.key, labels, unfinished, kept)) from e
                 except distributed.TimeoutError:  # its result died with its worker: it runs again elsewhere
                     results.add(future)
                     continue
@@ -441,17 +468,16 @@ class PairEngine:
                 unfinished.discard(future.key)
                 yield future, value
 
-    def _killer(self, key, labels: dict, unfinished: set) -> str:
+    def _killer(self, key, labels: dict, unfinished: set, kept: str) -> str:
         """The one line of a run stopped by a task that killed its workers. The scheduler gives up on every task
         that was on a worker as it died too often, those queued there beside the killer as well: the killer is the
         unfinished task that started most often (:func:`_logged`); ``key`` (the task given up on) when none did.
-        ``labels``: what each task's key works on ("pairs [(0, 1)]")."""
+        ``labels``: what each task's key works on ("pairs [(0, 1)]"); ``kept``: what the run leaves."""
         starts = collections.Counter(key for _, key in self.client.get_events(STARTED))
         killer = max(unfinished, key=lambda k: starts[k], default=key)
         killer = killer if starts[killer] >= 2 else key
         count = f" {starts[killer]} times" if starts[killer] >= 2 else ""
-        return (f"the task of {labels[killer]} killed the Dask workers that ran it{count}; "
-                "the pairs finished before it are in the cache (if any)")
+        return f"the task of {labels[killer]} killed the Dask workers that ran it{count}; {kept}"
 
     def _no_workers(self, left: str) -> str:
         """The one line of a run stopped for want of workers, with ``left`` still to run."""

@@ -46,7 +46,7 @@ def _rows(scans, i: int, j: int, num_points: int, seed: int) -> np.ndarray:
     return sampling.sample_indices(np.random.default_rng([seed, i, j]), len(scans[i].points), num_points)
 
 
-@threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the k-d tree's loops
+@threads.compiled_loops()  # on a worker too: BLAS on one thread, as in this process
 def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, gate: float):
     """``(blocks, g, residuals (C,))`` of the Tukey-weighted point-to-plane residuals of the directed pairs
     ``directed [(i, j), ...]`` (up to ``num_points`` seeded rows of scan ``i`` against scan ``j``'s tangent
@@ -56,7 +56,8 @@ def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, g
     gradient: O(pairs) memory, not O(S²). ``scans`` need hold only those of ``directed`` (a task's share)."""
     blocks, g, residuals = {}, {}, []
     for i, j in directed:
-        x = se3.apply(poses[i], scans[i].points[_rows(scans, i, j, num_points, seed)])  # (M, 3) common frame
+        rows = _rows(scans, i, j, num_points, seed)  # drawn again each step (cheap): a task needs no rows sent
+        x = se3.apply(poses[i], scans[i].points[rows])  # (M, 3) in the common frame
         in_j = se3.apply(np.linalg.inv(poses[j]), x)
         dist, idx = scans[j].tree.query(in_j, distance_upper_bound=gate)
         near = np.isfinite(dist)
