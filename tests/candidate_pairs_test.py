@@ -48,6 +48,18 @@ def test_select_pairs_gives_every_scan_k_partners_in_one_connected_graph(n, k, g
     assert best <= set(pairs)
 
 
+def test_bridging_pairs_give_each_scan_outside_the_largest_group_its_next_partners_across_groups():
+    scores = np.full((6, 6), 0.3)
+    for (i, j), v in {(0, 3): .9, (3, 4): .8, (2, 3): .7, (1, 3): .1, (3, 5): .05, (4, 5): .6, (0, 4): .2,
+                      (1, 4): .1, (2, 4): .05, (1, 5): .5, (0, 5): .1, (2, 5): .05}.items():
+        scores[i, j] = scores[j, i] = v
+    labels = [0, 0, 0, 1, 1, 2]  # group 0 the largest
+    # scan 3: 0 tried, 4 in its own group, then 2; scan 4: 3 in its group, then 5; scan 5: 4 chosen already, then 1
+    assert candidate_pairs.bridging_pairs(scores, labels, {(0, 3)}, 1) == [(1, 5), (2, 3), (4, 5)]
+    assert candidate_pairs.bridging_pairs(scores, labels, set(), 1) == [(0, 3), (1, 5), (4, 5)]
+    assert candidate_pairs.bridging_pairs(scores, [0] * 6, set(), 2) == []  # one group: nothing to bridge
+
+
 def test_select_pairs_refuses_bad_input():
     for scores, k in [(np.ones((3, 2)), 2), (np.ones((1, 1)), 1), (np.full((3, 3), np.nan), 1), (np.ones((3, 3)), 0),
                       (np.ones((3, 3)), 1.5)]:

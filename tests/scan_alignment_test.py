@@ -214,3 +214,28 @@ def test_scans_in_a_national_grid_get_the_poses_they_get_near_the_origin(bunny, 
         src = clouds[e.source][::20] + GRID
         gap = np.linalg.norm(src @ (e.transform - relative)[:3, :3].T + (e.transform - relative)[:3, 3], axis=1)
         assert np.max(gap) < 5e-3  # 5 mm on a 15 cm bunny (the edges of the shifted frames: kilometres)
+
+
+@pytest.mark.slow  # the run without the rounds places scans onto the merged ones
+def test_groups_the_candidate_pairs_leave_apart_are_bridged_by_the_next_partners(monkeypatch):
+    """Scores that rank each view's opposite first and its neighbours last: the first candidate pairs barely
+    overlap, and rounds of each outside scan's next partners across groups find the neighbours (no network, no
+    placement onto the merged scans); without the rounds they are not found."""
+    from rpmnet_jax.multiway import candidate_pairs, scan_alignment
+
+    count = 8
+    clouds, truth = ring_scans(count, asymmetric=True)
+    apart = np.abs(np.subtract.outer(np.arange(count), np.arange(count)))
+    apart = np.minimum(apart, count - apart)  # 0 ... 4 views round the ring
+    monkeypatch.setattr(candidate_pairs, "overlap_scores", lambda scans, seed=0: apart / 4.0)
+    options = rpmnet_jax.ScanOptions(all_pairs_up_to=2, neighbours=1)
+    reports = []
+    result = rpmnet_jax.align_scans(clouds, options=options, progress=lambda *r: reports.append(r))
+    errors = pose_errors.pose_errors(result.poses, truth, clouds)
+    print(errors, result.pairs, result.timings)
+    assert all(rot < 1.0 for rot, _ in errors), errors
+    assert any(r[0].startswith("classical edges between groups") for r in reports)
+    assert "network" not in result.timings and "global" not in result.timings
+    monkeypatch.setattr(scan_alignment, "BRIDGING_ROUNDS", 0)
+    without = rpmnet_jax.align_scans(clouds, options=options)
+    assert "network" in without.timings or "global" in without.timings

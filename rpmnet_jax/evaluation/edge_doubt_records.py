@@ -37,7 +37,7 @@ def scan_set(clouds, poses, *, seed: int = 0, tick=None, **meta) -> list:
     o = options_lib.ScanOptions(seed=seed)
     scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
     max_dist = sizes.DISTANCE_VOXELS * voxel
-    candidates = set(preparation.pairs_to_register(scans, o.all_pairs_up_to, o.neighbours, seed))
+    candidates = set(preparation.pairs_to_register(scans, o.all_pairs_up_to, o.neighbours, seed)[0])
     pairs = list(itertools.combinations(range(len(scans)), 2))
     out = []
     for k, (i, j) in enumerate(pairs):

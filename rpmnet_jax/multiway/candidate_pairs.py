@@ -122,6 +122,28 @@ def _spanning_tree(scores: np.ndarray) -> list:
     return [(int(a), int(b)) for a, b in zip(i[tree], j[tree])]
 
 
+def bridging_pairs(scores, labels, tried, k: int) -> list:
+    """Pairs ``[(i, j), ...]``, ``i < j``, sorted, none of ``tried``: each scan outside the largest group of
+    ``labels (S,)`` (ties: the lowest label) with its ``k`` best-scored partners in other groups (``scores (S, S)``,
+    ties to the lower index). Where the best ``k`` of :func:`select_pairs` left the scans in separate groups,
+    the next best partners across them."""
+    labels = np.asarray(labels)
+    scores = 0.5 * (np.asarray(scores, np.float64) + np.asarray(scores, np.float64).T)
+    largest = int(np.argmax(np.bincount(labels)))
+    out = set()
+    for i in np.flatnonzero(labels != largest):
+        picked = 0
+        for j in np.argsort(-scores[i], kind="stable"):
+            pair = (min(int(i), int(j)), max(int(i), int(j)))
+            if labels[j] == labels[i] or pair in tried or pair in out:
+                continue
+            out.add(pair)
+            picked += 1
+            if picked == k:
+                break
+    return sorted(out)
+
+
 def select_pairs(scores, k: int) -> list:
     """Pairs ``[(i, j), ...]`` to register, ``i < j``, sorted: each scan with its ``k`` best-scored partners
     (``scores (S, S)`` symmetric, higher = more overlap; ties to the lower index) and the maximum spanning tree

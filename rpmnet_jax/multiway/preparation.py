@@ -67,10 +67,11 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int):
     return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=index)
 
 
-def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int) -> list:
-    """``[(i, j), ...]``, ``i < j``: every pair up to ``all_pairs_up_to`` scans, else each scan with its
-    ``neighbours`` best partners by the bag-of-words overlap score and a spanning tree of those scores
-    (:mod:`rpmnet_jax.multiway.candidate_pairs`), whatever the order of the scans."""
+def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int) -> tuple:
+    """``([(i, j), ...], scores)``, ``i < j``: every pair up to ``all_pairs_up_to`` scans (``scores`` ``None``), else
+    each scan with its ``neighbours`` best partners by the bag-of-words overlap ``scores (S, S)`` and a spanning
+    tree of those scores (:mod:`rpmnet_jax.multiway.candidate_pairs`), whatever the order of the scans."""
     if len(scans) <= all_pairs_up_to:
-        return list(itertools.combinations(range(len(scans)), 2))
-    return candidate_pairs.select_pairs(candidate_pairs.overlap_scores(scans, seed=seed), neighbours)
+        return list(itertools.combinations(range(len(scans)), 2)), None
+    scores = candidate_pairs.overlap_scores(scans, seed=seed)
+    return candidate_pairs.select_pairs(scores, neighbours), scores
