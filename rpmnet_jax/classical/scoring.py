@@ -75,10 +75,11 @@ def dominant_share(normals) -> float:
 def balanced_fitness(normals, inlier_rows) -> float:
     """Fitness with every normal direction weighing the same: the points, by their unit ``normals (N, 3)``, in
     buckets of the nearest of :data:`NORMAL_DIRECTIONS` directions; the inlier share (the rows ``inlier_rows``,
-    e.g. a :class:`Score`'s ``correspondences[:, 0]``) of each bucket of at least :data:`MIN_BUCKET` points, averaged (0 without one). Normal-space sampling
-    (Rusinkiewicz and Levoy, "Efficient variants of the ICP algorithm", 3DIM 2001) as a score: a plane that
-    holds most of the points (a scene's ground) fits under any turn about its normal and any slide along it, and
-    carries plain fitness; here it is one bucket among the surfaces that fix the pose."""
+    e.g. a :class:`Score`'s ``correspondences[:, 0]``) of each bucket of at least :data:`MIN_BUCKET` points,
+    averaged (0 without one). Normal-space sampling (Rusinkiewicz and Levoy, "Efficient variants of the ICP
+    algorithm", 3DIM 2001) as a score: a plane that holds most of the points (a scene's ground) fits under any turn
+    about its normal and any slide along it, and carries plain fitness; here it is one bucket among the surfaces
+    that fix the pose."""
     if len(normals) == 0:
         return 0.0
     inlier = np.zeros(len(normals), bool)

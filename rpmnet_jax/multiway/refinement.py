@@ -64,8 +64,8 @@ def jointly(engine, scans, poses, placed, max_dist, options, keep, tick) -> tupl
     pairs = overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)
     poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed, tick=tick,
                                         map_pairs=engine.map_pairs).poses
-    chunks = [pairs[k:k + joint_refine.CHUNK] for k in range(0, len(pairs), joint_refine.CHUNK)]
-    measured = [e for share in engine.map_pairs(measure_pairs, chunks, poses, max_dist) for e in share]
+    measured = [e for share in engine.map_pairs(measure_pairs, joint_refine.shares(pairs), poses, max_dist)
+                for e in share]
     return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]
 
 

@@ -124,6 +124,11 @@ def _step(twist, centre):
     return step
 
 
+def shares(pairs) -> list:
+    """``pairs`` in consecutive shares of ``CHUNK`` (a task each on a cluster; fixed, so sums over them are too)."""
+    return [pairs[k:k + CHUNK] for k in range(0, len(pairs), CHUNK)]
+
+
 def in_process(scans):
     """``map_pairs(fn, chunks, *args)`` of :func:`refine_jointly` in this process."""
     return lambda fn, chunks, *args: [fn(scans, chunk, *args) for chunk in chunks]
@@ -147,7 +152,7 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
         return Refinement(poses, 0, True)
     map_pairs = map_pairs or in_process(scans)
     directed = [(i, j) for a, b in pairs for i, j in ((a, b), (b, a))]
-    chunks = [directed[k:k + CHUNK] for k in range(0, len(directed), CHUNK)]
+    chunks = shares(directed)
     used = sorted({s for p in pairs for s in p} - {anchor})
     placed = np.concatenate([se3.apply(poses[s], scans[s].points[:: max(1, len(scans[s].points) // 200)])
                              for s in sorted({s for p in pairs for s in p})])
@@ -159,8 +164,8 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
         for _ in range(max_iterations):
             total += 1
             gate = max(scale * max_distance, GATE_SIGMAS * sigma)
-            shares = map_pairs(pair_equations, chunks, poses, num_points, seed, centre, gate)
-            blocks, g, residuals = _normal_equations(shares, len(scans))
+            parts = map_pairs(pair_equations, chunks, poses, num_points, seed, centre, gate)
+            blocks, g, residuals = _normal_equations(parts, len(scans))
             if len(residuals) < 6 * len(used):
                 break
             sigma = 1.4826 * float(np.median(np.abs(residuals)))
