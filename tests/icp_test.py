@@ -88,6 +88,23 @@ def test_tukey_weights():
     np.testing.assert_allclose(icp.tukey_weights(2 * r, 2.0), icp.tukey_weights(r, 1.0))
 
 
+@pytest.mark.parametrize("m", [1, 2, 7, 8, 101])
+def test_the_gate_median_is_numpys(m):
+    values = np.random.default_rng(m).normal(size=m + 5)
+    values[::4] = np.inf  # a coarse gate's queries without a partner
+    values[1::5] = values[0]  # ties
+    assert icp._median(values.copy(), m) == np.median(values[:m])
+
+
+def test_the_step_solve_is_the_linear_solve():
+    rng = np.random.default_rng(0)
+    j = rng.normal(size=(40, 6)) * np.array([1e-3, 1e-3, 1e-3, 1.0, 1.0, 1e2])  # badly scaled columns
+    a = j.T @ j + 1e-9 * np.trace(j.T @ j) * np.eye(6)
+    b = rng.normal(size=6)
+    x = icp._solve6(a.copy(), b.copy())
+    np.testing.assert_allclose(x, np.linalg.solve(a, b), rtol=1e-9, atol=0)
+
+
 def test_gates_follow_the_clouds_within_their_bounds():
     """3 median nearest-neighbour distances: a coarse gate from the finest gate up to its scale; a fine gate
     narrower than its scale only for clouds much denser and cleaner than the correspondence distance."""
