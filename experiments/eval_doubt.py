@@ -7,7 +7,9 @@ Runs the default ``align`` on every pair of both public sets' test files, partia
 orientation (8 rows, the pairs of ``docs/results.md``'s table; records cached in ``--cache``, resumable), then
 prints per row: pairs, wrong answers (> 5°), the share of wrong answers flagged ``likely_wrong`` and of right ones,
 AUROC and the expected calibration error (10 bins) of ``p_wrong``, as a markdown table; ``--plot`` draws the
-reliability diagram of all rows together (and of the any-orientation rows).
+reliability diagram of all rows together (and of the any-orientation rows). ``--kinds RECORDS`` prints instead,
+per kind of real data, the flags of the shipped model and of ``--model`` on records of ``experiments.fit_doubt
+collect-real --part report`` (the real-scan benchmark's report pairs and the room's seed-1 stations).
 """
 
 from __future__ import annotations
@@ -62,6 +64,28 @@ def report(a) -> None:
         _plot(a.plot, p, y, np.array([r["rot_mag"] == 180.0 for r in rows]))
 
 
+def report_kinds(a) -> None:
+    """Per kind of data (``setting`` of records from ``experiments.fit_doubt collect-real``): pairs, wrong answers,
+    and the wrong and right ones flagged ``likely_wrong``, by the shipped model and by ``--model``."""
+    from rpmnet_jax.evaluation import doubt_records
+    from rpmnet_jax.pairwise import doubt
+    rows = doubt_records.read(a.kinds)
+    x, y = doubt_records.features(rows), doubt_records.labels(rows)
+    models = {"shipped": doubt.load()} | ({"--model": doubt.load(a.model)} if a.model else {})
+    print("| kind | pairs | wrong (> 5°) | " + " | ".join(f"{n}: wrong flagged | {n}: right flagged" for n in models)
+          + " |")
+    print("|---|---|---|" + "---|---|" * len(models))
+    kinds = np.array([r["setting"] for r in rows])
+    for kind in [*dict.fromkeys(kinds), "all"]:
+        m = (kinds == kind) | (kind == "all")
+        cells = []
+        for model in models.values():
+            flag = model.probability(x[m]) >= model.threshold
+            cells.append(f"{flag[y[m]].sum()} / {y[m].sum()}" if y[m].any() else "–")
+            cells.append(f"{flag[~y[m]].sum()} / {(~y[m]).sum()}")
+        print(f"| {kind} | {m.sum()} | {y[m].sum()} | " + " | ".join(cells) + " |")
+
+
 def _plot(path, p, y, any_orientation) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -90,7 +114,11 @@ def main(argv=None) -> None:
     p.add_argument("--collect-only", action="store_true")
     p.add_argument("--model", default=None, help="a doubt model JSON (default the shipped one)")
     p.add_argument("--plot", default=None)
+    p.add_argument("--kinds", default=None, help="only the per-kind table of these real-scan records "
+                   "(experiments.fit_doubt collect-real)")
     a = p.parse_args(argv)
+    if a.kinds:
+        return report_kinds(a)
     os.makedirs(os.path.dirname(os.path.abspath(a.cache)), exist_ok=True)
     collect(a)
     if not a.collect_only:

@@ -3,7 +3,8 @@ from pairs of TRAINING files only.
 
     python -m experiments.fit_doubt collect --minutes 55 [--cache /tmp/rpmnet_doubt/train.jsonl]
     python -m experiments.fit_doubt collect-scans --minutes 30 [--cache ...] [--meshes 12]
-    python -m experiments.fit_doubt fit [--cache ...] [--output rpmnet_jax/weights/doubt.json]
+    python -m experiments.fit_doubt collect-real --part tune [--cache .../real_tune.jsonl]
+    python -m experiments.fit_doubt fit [--cache train.jsonl,real_tune.jsonl] [--output rpmnet_jax/weights/doubt.json]
 
 ``collect`` runs the default ``align`` on pairs made from the train files of ``--data-roots`` (all categories),
 round-robin over :data:`CONFIGS` (partial and noisy, any orientation and ±45°, the paper's crop at 1,024 points and
@@ -13,7 +14,10 @@ skipped, so it resumes). ``collect-scans`` adds pairs of simulated range scans
 (:func:`experiments.network_trust.scan_pairs`: full density and 1,024 points) of the Poisson meshes of ``--meshes``
 seeded train-file rows of ``real_meshes_train`` (never the rows ``network_trust`` checks the trust rule on, nor the
 bunny), each pair answered twice: by the default ``align`` and by ``init="classical"`` (the answer ``auto`` keeps
-when it trusts it; on scans it is mostly wrong, which the crops alone never show the model). ``fit`` (needs
+when it trusts it; on scans it is mostly wrong, which the crops alone never show the model). ``collect-real``
+adds scenes and real scans (:func:`real_jobs`): the TUNE parts of the real-scan benchmark (an object's range scans,
+indoor RGB-D frames, outdoor LiDAR sweeps) and the simulated room's seed-0 stations, answered both ways; ``--part
+report`` records the report parts and the room's seed 1 for ``experiments.eval_doubt --kinds``. ``fit`` (needs
 scikit-learn: ``pip install -e ".[fit]"``) fits a logistic regression on the standardised features, maps its
 out-of-fold scores to probabilities by Platt scaling (a shape's, or a scanned mesh's, pairs in one fold), picks the
 threshold (the lowest on a 0.05 grid whose out-of-fold flags take at most 2% of the right answers of the paper's
@@ -100,10 +104,58 @@ def collect_scans(a) -> None:
                           "minutes_left": round((stop - time.time()) / 60, 1)}), flush=True)
 
 
+REAL_MAX_PAIRS = {"tune": 45, "report": 12}  # pairs per set: every overlapping tune pair; the benchmark's report pairs
+ROOM_SEEDS = {"tune": 0, "report": 1}  # the simulated room's station pairs (rpmnet_jax.simulation.rooms)
+
+
+def real_jobs(part: str, inits=SCAN_INITS):
+    """:class:`doubt_records.Job` s of the real-scan benchmark's ``part`` (``benchmarks/real_scans``: an object's range
+    scans, indoor RGB-D frames, outdoor LiDAR sweeps; its overlapping pairs as captured and with the source turned, as
+    its ``run.py`` registers them) and of the simulated room's 15 station pairs (seed :data:`ROOM_SEEDS`), each
+    answered with every init of ``inits``. ``setting`` is the data's kind, ``group`` its set (one fold each)."""
+    import sys
+    from rpmnet_jax.evaluation import doubt_records
+    from rpmnet_jax.simulation import rooms
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks",
+                                    "real_scans"))
+    import sets
+
+    def job(meta, src, ref, truth):
+        for init in inits:
+            yield doubt_records.Job({**meta, "protocol": init}, lambda src=src, ref=ref, truth=truth, init=init:
+                                    (src, ref, None, None, truth, {"init": init}, {}))
+
+    for name in sets.available():
+        s = sets.load(name, part)
+        for k, (a, b) in enumerate(sets.pairs(s, REAL_MAX_PAIRS[part])):
+            truth = np.linalg.inv(s.poses[b]) @ s.poses[a]
+            for mode in ("captured", "turned"):
+                src, motion = (s.clouds[a], np.eye(4)) if mode == "captured" else sets.turn(s.clouds[a], seed=k)
+                meta = {"set": name, "split": part, "rot_mag": None, "seed": 0, "setting": s.kind, "group": name,
+                        "idx": 1000 * a + b + (100000 if mode == "turned" else 0), "mode": mode}
+                yield from job(meta, src, s.clouds[b], truth @ np.linalg.inv(motion))
+    stations = rooms.stations(ROOM_SEEDS[part])
+    for a in range(len(stations)):
+        for b in range(a + 1, len(stations)):
+            truth = np.linalg.inv(stations[b].pose) @ stations[a].pose
+            meta = {"set": "room", "split": part, "rot_mag": None, "seed": ROOM_SEEDS[part], "setting": "room",
+                    "group": "room", "idx": 1000 * a + b, "mode": "captured"}
+            yield from job(meta, stations[a].points, stations[b].points, truth)
+
+
+def collect_real(a) -> None:
+    from rpmnet_jax.evaluation import doubt_records
+    from rpmnet_jax.weights import loading
+    inits = SCAN_INITS if a.part == "tune" else ("auto",)  # the report part: the answers align gives
+    new = doubt_records.collect_jobs(real_jobs(a.part, inits), loading.load_params(None), a.cache, progress=False)
+    rows = doubt_records.read(a.cache)
+    print(json.dumps({"part": a.part, "new": len(new), "pairs": len(rows), "wrong": int(doubt_records.labels(rows).sum())}))
+
+
 def fit(a) -> None:
     from rpmnet_jax.evaluation import calibration, doubt_records
     from rpmnet_jax.pairwise import doubt
-    rows = doubt_records.read(a.cache)
+    rows = [r for path in a.cache.split(",") for r in doubt_records.read(path)]
     x, y = doubt_records.features(rows), doubt_records.labels(rows)
     groups = np.array([zlib.crc32(r.get("group", f"{r['set']}/{r['idx']}").encode()) % 10
                        for r in rows])  # a shape (a scanned mesh) in one fold
@@ -146,18 +198,20 @@ MAX_FLAGGED_RIGHT = 0.02  # the default bar flags at most this share of the righ
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("command", choices=("collect", "collect-scans", "fit"))
-    p.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "rpmnet_doubt", "train.jsonl"))
+    p.add_argument("command", choices=("collect", "collect-scans", "collect-real", "fit"))
+    p.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "rpmnet_doubt", "train.jsonl"),
+                   help="the records (fit: several, comma-separated)")
     p.add_argument("--data-roots", default=DATA_ROOTS)
     p.add_argument("--minutes", type=float, default=55.0)
     p.add_argument("--meshes", type=int, default=12, help="collect-scans: train-file meshes to scan")
+    p.add_argument("--part", default="tune", choices=("tune", "report"), help="collect-real: which part")
     p.add_argument("--output", default=os.path.join("rpmnet_jax", "weights", "doubt.json"))
     p.add_argument("--c", type=float, default=0.1, help="inverse L2 strength of the logistic regression")
     p.add_argument("--threshold", type=float, default=None,
                    help="the likely_wrong bar (default: the lowest flagging <= 2%% of right training answers)")
     a = p.parse_args(argv)
-    os.makedirs(os.path.dirname(os.path.abspath(a.cache)), exist_ok=True)
-    {"collect": collect, "collect-scans": collect_scans, "fit": fit}[a.command](a)
+    os.makedirs(os.path.dirname(os.path.abspath(a.cache.split(",")[0])), exist_ok=True)
+    {"collect": collect, "collect-scans": collect_scans, "collect-real": collect_real, "fit": fit}[a.command](a)
 
 
 if __name__ == "__main__":

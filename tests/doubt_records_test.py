@@ -46,3 +46,23 @@ def test_collect_jobs_skips_recorded_pairs_and_stops_at_the_deadline(tmp_path):
     assert doubt_records.collect_jobs([job(0), job(1)], None, path, progress=False) == [] and loaded == [0, 1]
     assert doubt_records.collect_jobs([job(2)], None, path, progress=False, deadline=0.0) == [] and loaded == [0, 1]
     assert [r["idx"] for r in doubt_records.read(path)] == [0, 1]
+
+
+def test_collect_runs_align_on_a_datasets_pairs_at_its_number_of_points(tmp_path):
+    """``collect`` (the fitting and evaluation scripts' path) aligns each dataset pair with the network seeing the
+    dataset's number of points, and records the protocol, index and class."""
+    pts, nrm = asymmetric_shape(seed=4, n=1000)
+    truth = rotation_about([0, 1, 0], 15.0)
+
+    class Pairs:  # the part of data.ModelNet40 that collect reads
+        protocol, rot_mag, class_names = "partial", 45.0, ["toy"]
+
+        def __getitem__(self, i):
+            src = np.c_[pts[:700], nrm[:700]]
+            ref = np.c_[pts[300:] @ truth.T, nrm[300:] @ truth.T]
+            return {"points_src": src, "points_ref": ref, "transform_gt": np.c_[truth, np.zeros(3)], "label": 0}
+
+    path = str(tmp_path / "r.jsonl")
+    new = doubt_records.collect(Pairs(), [0], None, path, progress=False, set="toy", split="train")
+    assert len(new) == 1 and new[0]["idx"] == 0 and new[0]["protocol"] == "partial" and new[0]["label"] == "toy"
+    assert new[0]["error_deg"] < 1

@@ -13,7 +13,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from rpmnet_jax import metrics
-from rpmnet_jax.pairwise import alignment, doubt
+from rpmnet_jax.pairwise import alignment, doubt, options
 
 
 def record(a: alignment.Alignment, transform_gt, **meta) -> dict:
@@ -105,7 +105,8 @@ def collect(ds, indices, params, path: str, progress: bool = True, **meta) -> li
         def load():
             d = ds[i]
             s, r = np.asarray(d["points_src"], np.float64), np.asarray(d["points_ref"], np.float64)
-            return (s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], d["transform_gt"], {"num_points": max(len(s), len(r))},
+            network = options.NetworkOptions(points=max(len(s), len(r)))
+            return (s[:, :3], r[:, :3], s[:, 3:6], r[:, 3:6], d["transform_gt"], {"network_options": network},
                     {"label": ds.class_names[int(d["label"])]})
 
         return Job({**meta, "protocol": ds.protocol, "rot_mag": float(ds.rot_mag), "idx": i}, load)
