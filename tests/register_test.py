@@ -291,3 +291,24 @@ def test_bad_columns_exit_2_and_write_nothing(tmp_path, capsys, random_weights, 
     assert code == 2 and out == "" and message in err, err
     assert err.startswith("rpmnet-register: error:") and len(err.strip().splitlines()) == 1, err
     assert not out_t.exists() and not out_a.exists()
+
+
+def test_a_pcd_viewpoint_is_its_sensor_and_the_other_follows_viewpoints(tmp_path, monkeypatch, random_weights):
+    """``rpmnet-register`` gives ``align`` each cloud's sensor: a PCD's VIEWPOINT, else ``--viewpoints``."""
+    from rpmnet_jax.pairwise import alignment
+
+    pts = synthetic_shape(seed=1, n=500)[0]
+    header = ("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\n"
+              "VIEWPOINT {v} 1 0 0 0\nPOINTS {n}\nDATA ascii\n")
+    for name, viewpoint in (("src.pcd", "1.5 -2 3"), ("ref.pcd", "0 0 0")):
+        body = "\n".join(" ".join(repr(float(x)) for x in row) for row in pts)
+        (tmp_path / name).write_text(header.format(n=len(pts), v=viewpoint) + body + "\n")
+    seen = {}
+    real_align = alignment.align
+    monkeypatch.setattr(alignment, "align", lambda *a, **k: seen.update(k) or real_align(*a, **k))
+    assert register_cli.main([str(tmp_path / "src.pcd"), str(tmp_path / "ref.pcd"), "--viewpoints", "none",
+                              "--init", "classical"]) == 0
+    assert seen["viewpoints"][0].tolist() == [1.5, -2.0, 3.0] and seen["viewpoints"][1] == "none"
+    with pytest.raises(SystemExit) as stop:  # argparse's own one-line usage error
+        register_cli.main([str(tmp_path / "src.pcd"), str(tmp_path / "ref.pcd"), "--viewpoints", "sensor"])
+    assert stop.value.code == 2

@@ -42,12 +42,12 @@ def test_a_sweep_is_taken_from_its_origin_and_an_object_is_not():
 
 
 def test_sensors_auto_takes_the_frame_origin_of_a_sweep_only():
-    found = sizes.sensors([_sweep(0), _object(1)], "auto")
+    found = sensors.positions([_sweep(0), _object(1)], "auto")
     np.testing.assert_array_equal(found[0], 0.0)
     assert found[1] is None
-    assert all(s is not None for s in sizes.sensors([_object(0), _object(1)], "origin"))
-    assert sizes.sensors([_sweep(0), _sweep(1)], "none") == [None, None]
-    given = sizes.sensors([_sweep(0), _sweep(1), _object(0)], [None, (1.0, 2.0, 3.0), "auto"])
+    assert all(s is not None for s in sensors.positions([_object(0), _object(1)], "origin"))
+    assert sensors.positions([_sweep(0), _sweep(1)], "none") == [None, None]
+    given = sensors.positions([_sweep(0), _sweep(1), _object(0)], [None, (1.0, 2.0, 3.0), "auto"])
     assert given[0] is None and given[1].tolist() == [1.0, 2.0, 3.0] and given[2] is None
 
 
@@ -56,7 +56,7 @@ def test_sensors_auto_takes_the_frame_origin_of_a_sweep_only():
     ([None, (0.0, np.nan, 0.0)], "viewpoint of scan 1"), ([None, (0.0, 1.0)], "viewpoint of scan 1")])
 def test_bad_viewpoints_are_refused(viewpoints, message):
     with pytest.raises(ValueError, match=message):
-        sizes.sensors([_sweep(0), _sweep(1)], viewpoints)
+        sensors.positions([_sweep(0), _sweep(1)], viewpoints)
 
 
 def test_the_voxel_is_a_scene_share_when_every_sensor_is_surrounded_else_an_object_share():

@@ -75,3 +75,28 @@ def test_align_prefers_the_answer_that_keeps_out_of_free_space(monkeypatch):
     assert rotation_error(rpmnet_jax.align(a.points, b.points)) < 1.0
     monkeypatch.setattr(visibility, "MAX_FREE_SPACE_SHARE", 1.0)  # every answer clear: the check chooses nothing
     assert rotation_error(rpmnet_jax.align(a.points, b.points)) > 90.0
+
+
+def test_align_uses_the_sensors_the_caller_gives():
+    """The same two stations written with their sensor 30 m from each frame origin (measured: ``viewpoints="auto"``
+    finds no sensor there and answers the half turn, 180° off): given the sensors, ``align`` turns the estimated
+    normals toward them, runs the free-space check from there and answers right."""
+    import rpmnet_jax
+    from rpmnet_jax.ops import se3
+    from rpmnet_jax.pairwise import prepare
+
+    stations = rooms.stations(0)
+    a, b = stations[0], stations[4]
+    off = np.array([30.0, -12.0, 4.0])  # each station's sensor in its own (shifted) frame
+    move = np.eye(4)
+    move[:3, 3] = off
+    truth = move @ np.linalg.inv(b.pose) @ a.pose @ np.linalg.inv(move)
+    result = rpmnet_jax.align(a.points + off, b.points + off, viewpoints=(off, off))
+    assert se3.rotation_angle_deg((np.linalg.inv(truth) @ result.transform)[:3, :3]) < 1.0
+    facing = {}
+    for viewpoints in ((off, None), "none"):
+        pair = prepare.prepare_pair(a.points + off, b.points + off, viewpoints=viewpoints)
+        to_sensor = (off - pair.c_src) / pair.scale - pair.src6[0, :, :3]
+        facing[str(viewpoints)] = np.mean(np.sum(pair.src6[0, :, 3:] * to_sensor, axis=1) > 0)
+    assert facing[str((off, None))] > 0.9 and facing["none"] < 0.1  # measured 0.94 and 0.06 (grazing walls)
+    assert pair.sensors == (None, None)

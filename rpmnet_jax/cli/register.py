@@ -35,6 +35,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--centering", choices=("separate", "common"), default="separate",
                    help="centre each cloud on its own centroid (default) or both on their joint centroid")
     p.add_argument("--estimate-normals", action="store_true", help="re-estimate normals even if the files have them")
+    p.add_argument("--viewpoints", choices=("auto", "origin", "none"), default="auto",
+                   help="where each cloud's sensor stood (estimated normals face it; with both known, an answer that "
+                        "puts one cloud where the other's sensor saw through loses): auto (default: the frame origin "
+                        "when both clouds look taken from it), origin (each cloud is in its sensor's frame), none "
+                        "(objects). A PCD with a VIEWPOINT has its sensor there")
     p.add_argument("--columns", default=None,
                    help="what the columns of the input files are, by position, e.g. x,y,z,r,g,b (names: x y z nx ny nz "
                         "r g b or red green blue, intensity, _ to skip); default: the files' own names (PLY, PCD, a "
@@ -78,7 +83,9 @@ def main(argv=None) -> int:
         source = cloud_io.read(args.src, columns=args.columns)  # colours and intensity go to --out-aligned
         src, src_n = source.points, source.normals
         ref_columns = args.columns if args.ref_columns is None else args.ref_columns
-        ref, ref_n = cloud_io.read_cloud(args.ref, columns=ref_columns)
+        target = cloud_io.read(args.ref, columns=ref_columns)
+        ref, ref_n = target.points, target.normals
+        viewpoints = tuple(args.viewpoints if c.viewpoint is None else c.viewpoint for c in (source, target))
         if args.checkpoint is None and not loading.has_default():
             raise ValueError("no shipped model in this install; pass --checkpoint")
         t0 = time.time()
@@ -88,7 +95,7 @@ def main(argv=None) -> int:
                                              centering=args.centering)
             result = align_lib.align(src, ref, src_n, ref_n, checkpoint=args.checkpoint, seed=args.seed,
                                      init=args.init, refine=args.refine, network_options=network,
-                                     reestimate_normals=args.estimate_normals,
+                                     reestimate_normals=args.estimate_normals, viewpoints=viewpoints,
                                      max_correspondence_distance=args.max_correspondence_distance)
         seconds = time.time() - t0
     except (ValueError, OSError) as e:  # bad input, or a file that is missing, a folder, or unreadable

@@ -6,6 +6,11 @@ least ``SURROUND_RATIO`` × as far as its near ones), or when its points lie far
 the origin, as a scanner's angular sampling makes them (the log-log slope of spacing over distance, from the
 medians of the near and the far half, at least ``SENSOR_SLOPE``). A whole object centred on its frame origin often
 surrounds it too (97 of ModelNet40's 150 test shapes): ``align`` uses the spacing rule alone.
+
+:func:`positions` reads a caller's ``viewpoints`` (of :func:`rpmnet_jax.align_scans` and :func:`rpmnet_jax.align`):
+``"auto"`` takes a scan's frame origin as its sensor when :func:`taken_from` says so, ``"origin"`` every frame
+origin, ``"none"`` no sensor (normals face away from each scan's centroid: closed objects), or per scan a rule, a
+``(3,)`` position in that scan's coordinates, or ``None``.
 """
 
 from __future__ import annotations
@@ -24,6 +29,33 @@ SURROUND_RATIO = 3.0
 SENSOR_SLOPE = 0.45
 SENSOR_RANGE_RATIO = 1.5  # an origin far from every point (a national grid's) sees them all at one distance
 SLOPE_SAMPLE = 2000  # points whose spacing is measured
+VIEWPOINTS = ("auto", "origin", "none")
+
+
+def positions(clouds, viewpoints, labels=None) -> list:
+    """Each scan's sensor position ``(3,)`` float64 in its own coordinates, or ``None``: ``viewpoints`` as the
+    module docstring says (one rule for all, or per scan a rule, a position or ``None``), ``clouds`` the cleaned
+    scans ``(N_i, 3)`` in the caller's coordinates; ``labels`` name them in errors (default ``scan i``)."""
+    labels = labels or [f"scan {i}" for i in range(len(clouds))]
+    if isinstance(viewpoints, str):
+        viewpoints = [viewpoints] * len(clouds)
+    viewpoints = list(viewpoints)
+    if len(viewpoints) != len(clouds):
+        raise ValueError(f"got {len(viewpoints)} viewpoints for {len(clouds)} scans")
+    return [_position(label, c, v) for label, c, v in zip(labels, clouds, viewpoints)]
+
+
+def _position(label: str, points: np.ndarray, viewpoint) -> np.ndarray | None:
+    if isinstance(viewpoint, str):
+        if viewpoint not in VIEWPOINTS:
+            raise ValueError(f"viewpoints must be one of {VIEWPOINTS}, positions or None, got {viewpoint!r}")
+        origin = np.zeros(3)
+        taken = viewpoint == "origin" or (viewpoint == "auto" and taken_from(points, origin))
+        return origin if taken else None
+    v = None if viewpoint is None else np.asarray(viewpoint, np.float64)
+    if v is not None and (v.shape != (3,) or not np.all(np.isfinite(v))):
+        raise ValueError(f"viewpoint of {label}: expected three finite coordinates, got {v}")
+    return v
 
 
 def taken_from(points: np.ndarray, origin: np.ndarray, surround: bool = True,

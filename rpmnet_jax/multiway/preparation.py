@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, threads
+from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, sensors, threads
 from rpmnet_jax.multiway import candidate_pairs, sizes
 from rpmnet_jax.pair_edges import edges as edges_lib
 
@@ -31,7 +31,7 @@ def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="au
                   tick=None) -> Prepared:
     """The scans ``clouds[i] (N_i, 3)`` (``normals``: ``None`` or one ``(N_i, 3)`` or ``None`` per scan) moved by
     ``-shift (3,)``, at ``voxel_size`` (``None``: :func:`~rpmnet_jax.multiway.sizes.voxel`'s default), their
-    sensors from ``viewpoints`` (:func:`~rpmnet_jax.multiway.sizes.sensors`); each scan made ready by
+    sensors from ``viewpoints`` (:func:`~rpmnet_jax.geometry.sensors.positions`); each scan made ready by
     :func:`prepare_scan`, by ``engine`` when given (:meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.prepare`:
     a task a scan on a cluster), ``tick(done, total)`` as they finish."""
     if len(clouds) < 2:
@@ -40,7 +40,7 @@ def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="au
     if len(normals) != len(clouds):
         raise ValueError(f"got {len(normals)} normal arrays for {len(clouds)} scans")
     cleaned = [cloud.clean_cloud(f"scan {i}", c, n)[:2] for i, (c, n) in enumerate(zip(clouds, normals))]
-    seen_from = [None if v is None else v - shift for v in sizes.sensors([p for p, _ in cleaned], viewpoints)]
+    seen_from = [None if v is None else v - shift for v in sensors.positions([p for p, _ in cleaned], viewpoints)]
     cleaned = [(p - shift, n) for p, n in cleaned]
     voxel, scene = sizes.voxel([p for p, _ in cleaned], seen_from, voxel_size)
     jobs = [(p, n, sensor, voxel, i) for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from))]

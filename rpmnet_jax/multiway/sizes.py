@@ -10,13 +10,7 @@ The voxel is the caller's, else a share of the median robust scan radius
   known sensor inside its scan's bounding box): ``SCENE_RELATIVE_VOXEL`` (1%): a sweep's radius is its range,
   and its structure (kerbs, poles, facades) is finer for its size than an object's.
 
-Sensors (``viewpoints`` of :func:`rpmnet_jax.align_scans`): ``"auto"`` (default) takes a scan's frame origin as its
-sensor when the scan looks taken from there (:func:`rpmnet_jax.geometry.sensors.taken_from`: it surrounds the
-origin, as a LiDAR sweep or a scanner station does, or its points lie farther apart the farther they are from it,
-as a scanner's angular sampling makes them; a whole object centred on its frame origin often surrounds it too, 97
-of ModelNet40's 150 test shapes: pass ``"none"`` for such objects); ``"origin"``: every frame origin; ``"none"``:
-no sensor (normals face away from each scan's centroid: closed objects); or one ``(3,)`` position per scan
-(``None`` for a scan without), in that scan's coordinates.
+Sensors (``viewpoints`` of :func:`rpmnet_jax.align_scans`): :func:`rpmnet_jax.geometry.sensors.positions`.
 """
 
 from __future__ import annotations
@@ -52,34 +46,6 @@ SCENE_PLANE_RESIDUAL = 0.06
 # data (tuning data: not held-out)
 BALANCED_FITNESS = 0.6
 DOMINANT_SHARE = 0.3
-VIEWPOINTS = ("auto", "origin", "none")
-
-
-def sensors(clouds, viewpoints) -> list:
-    """Each scan's sensor position ``(3,)`` float64 in its own coordinates, or ``None``: ``viewpoints`` as the
-    module docstring says (one rule for all, or per scan a rule, a position or ``None``), ``clouds`` the cleaned
-    scans ``(N_i, 3)`` in the caller's coordinates."""
-    if isinstance(viewpoints, str):
-        viewpoints = [viewpoints] * len(clouds)
-    viewpoints = list(viewpoints)
-    if len(viewpoints) != len(clouds):
-        raise ValueError(f"got {len(viewpoints)} viewpoints for {len(clouds)} scans")
-    return [_sensor(i, c, v) for i, (c, v) in enumerate(zip(clouds, viewpoints))]
-
-
-def _sensor(i: int, points: np.ndarray, viewpoint) -> np.ndarray | None:
-    if isinstance(viewpoint, str):
-        if viewpoint not in VIEWPOINTS:
-            raise ValueError(f"viewpoints must be one of {VIEWPOINTS}, positions or None, got {viewpoint!r}")
-        origin = np.zeros(3)
-        taken = viewpoint == "origin" or (viewpoint == "auto" and sensors_lib.taken_from(points, origin))
-        return origin if taken else None
-    v = None if viewpoint is None else np.asarray(viewpoint, np.float64)
-    if v is not None and (v.shape != (3,) or not np.all(np.isfinite(v))):
-        raise ValueError(f"viewpoint of scan {i}: expected three finite coordinates, got {v}")
-    return v
-
-
 def voxel(clouds, sensors_, given: float | None) -> tuple[float, bool]:
     """``(voxel, scene)``: the caller's ``given`` voxel, else the share of the median robust radius of ``clouds``
     for objects or, when every known sensor lies inside its scan's box (and one is known), for a scene."""

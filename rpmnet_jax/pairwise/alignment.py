@@ -34,8 +34,9 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
    from what the steps above measured (:mod:`rpmnet_jax.pairwise.doubt`), ``likely_wrong`` whether it reaches
    the shipped model's threshold; it reads the answer and never changes it.
 
-Scans taken from their frame origins (scanner stations, RGB-D frames, full-density sweeps: their spacing grows
-with the distance from it, :func:`rpmnet_jax.geometry.sensors.taken_from`, both clouds): the best distinct
+Scans whose sensors are known (``viewpoints``), or taken from their frame origins (scanner stations, RGB-D frames,
+full-density sweeps: their spacing grows with the distance from it, :func:`rpmnet_jax.geometry.sensors.taken_from`,
+both clouds): the best distinct
 candidate that keeps each cloud out of the space the other's sensor saw through
 (:mod:`rpmnet_jax.geometry.visibility`) is the answer (a room's half turn fits its walls as well as the truth and
 puts its furniture there); when none does, the answer is ``likely_wrong``.
@@ -122,10 +123,16 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, init: s
           network_options: options_lib.NetworkOptions = options_lib.NetworkOptions(),
           refine_options: options_lib.RefineOptions = options_lib.RefineOptions(),
           global_options: options_lib.GlobalOptions = options_lib.GlobalOptions(),
-          reestimate_normals: bool = False, cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
+          reestimate_normals: bool = False, viewpoints="auto", cfg: config_lib.RPMNetConfig | None = None) -> Alignment:
     """Rigidly aligns ``src_points (N, 3)`` onto ``ref_points (M, 3)``; see the module docstring.
 
-    Normals (``(N, 3)``, any length > 0) are estimated when missing or when ``reestimate_normals``.
+    Normals (``(N, 3)``, any length > 0) are estimated when missing or when ``reestimate_normals``, facing each
+    cloud's sensor where one is known. ``viewpoints``: where the sensors stood: ``"auto"`` (the caller's origin when
+    both clouds lie 2-100 radii from it, for the normals, and when both look taken from it, for the free-space
+    check), ``"origin"`` (each cloud in its sensor's frame), ``"none"`` (no sensor: closed objects), or
+    ``(source, reference)``, each a ``(3,)`` position in its cloud's coordinates, one of those words, or ``None``
+    (:func:`rpmnet_jax.geometry.sensors.positions`). With both sensors known, an answer that puts one cloud in
+    the space the other's sensor saw through loses to a candidate that does not (else it is ``likely_wrong``).
     ``checkpoint``: orbax dir, ``.npz`` or official ``.pth``; default the shipped model (or pass ``params``).
     The rest is in options objects (:mod:`rpmnet_jax.pairwise.options`): ``network_options`` what the network sees
     (points per cloud, sampling, centring, iterations), ``refine_options`` the ICP's sample size and stopping,
@@ -140,8 +147,9 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, init: s
             src_points, ref_points, src_normals, ref_normals, num_points=net.points, sampling=net.sampling, seed=seed,
             reestimate_normals=reestimate_normals, centering=net.centering,
             icp=refine == "icp", dense_points=refine_options.points if (refine == "icp" or init != "local") else None,
-            max_correspondence_distance=max_correspondence_distance, relative_distance=DEFAULT_RELATIVE_DISTANCE)
-        free_space = _free_space(inputs)  # scans taken from their frame origins: what each sensor saw, made once
+            max_correspondence_distance=max_correspondence_distance, relative_distance=DEFAULT_RELATIVE_DISTANCE,
+            viewpoints=viewpoints)
+        free_space = _free_space(inputs)  # scans taken from known sensors: what each sensor saw, made once
     if params is None and checkpoint is not None:  # a caller's checkpoint is checked (and refused) up front
         params = loading.load_params(checkpoint)
     search = _Search(inputs, clock, refine, refine_options, global_options, cfg or config_lib.RPMNetConfig(), params,
@@ -240,17 +248,24 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
 
 
 def _free_space(inputs: prepare.Inputs) -> tuple | None:
-    """``(src grid, ref grid, their range images)`` when both clouds look taken from their frame origins by their
-    spacing (:func:`rpmnet_jax.geometry.sensors.taken_from` without the surround rule, which a whole object centred
-    on its origin can meet: scanner stations, RGB-D frames, full-density sweeps), else None. On a voxel grid of
+    """``(src grid, ref grid, their range images)`` when both clouds' sensors are known: the caller's, else (``"auto"``)
+    their frame origins when both clouds look taken from there by their spacing
+    (:func:`rpmnet_jax.geometry.sensors.taken_from` without the surround rule, which a whole object centred on its
+    origin can meet: scanner stations, RGB-D frames, full-density sweeps); else None. On a voxel grid of
     ``FREE_SPACE_CELL`` (space weighed evenly: a scanner's dense floor around it would dilute the share)."""
     pair, origin = inputs.pair, np.zeros(3)
-    if not (sensors.taken_from(pair.src, origin, surround=False)
-            and sensors.taken_from(pair.ref, origin, surround=False, tree=inputs.ref_tree)):
+    if pair.sensors is not None:
+        seen_from = pair.sensors
+    elif (sensors.taken_from(pair.src, origin, surround=False)
+          and sensors.taken_from(pair.ref, origin, surround=False, tree=inputs.ref_tree)):
+        seen_from = (origin, origin)
+    else:
+        return None
+    if seen_from[0] is None or seen_from[1] is None:
         return None
     cell = FREE_SPACE_CELL * inputs.max_distance
     src, ref = (sampling_lib.voxel_downsample(c, None, cell)[0] for c in (pair.src, pair.ref))
-    return src, ref, visibility.range_image(src, origin), visibility.range_image(ref, origin)
+    return src, ref, visibility.range_image(src, seen_from[0]), visibility.range_image(ref, seen_from[1])
 
 
 def _free_space_first(inputs: prepare.Inputs, selection: candidates_lib.Selection, free_space) -> tuple:

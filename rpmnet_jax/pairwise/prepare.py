@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax.geometry import cloud, kdtree, normals as normals_lib, sampling as sampling_lib
+from rpmnet_jax.geometry import cloud, kdtree, normals as normals_lib, sampling as sampling_lib, sensors
 from rpmnet_jax.classical import icp as icp_lib
 from rpmnet_jax.ops import se3
 
@@ -43,6 +43,8 @@ class PreparedPair(NamedTuple):
     ref_rows: np.ndarray  # (M,) int64
     src_core: np.ndarray  # (N,) bool: not a stray point (geometry.cloud.robust_centre); only these are sampled
     ref_core: np.ndarray  # (M,) bool
+    sensors: tuple | None = None  # the caller's (source, reference) sensors, each (3,) or None, caller's units;
+    # None: the automatic rules (VIEWPOINT_RANGE for the normals, the spacing rule for the free space)
 
     def to_callers_units(self, t_unit) -> np.ndarray:
         """``(..., 3, 4)`` transforms between the normalised clouds → ``(..., 4, 4)`` in the caller's units."""
@@ -59,13 +61,14 @@ class PreparedPair(NamedTuple):
 
 def prepare_pair(src_points, ref_points, src_normals=None, ref_normals=None, *, num_points: int = 1024,
                  sampling: str = "random", seed: int = 0, reestimate_normals: bool = False,
-                 centering: str = "separate") -> PreparedPair:
+                 centering: str = "separate", viewpoints="auto") -> PreparedPair:
     """Cleans, centres, scales into the unit sphere, downsamples and (where missing) estimates normals.
 
     ``src_points (N, 3)``, ``ref_points (M, 3)``; see :func:`rpmnet_jax.align` for the options. Estimated
-    normals are oriented the same way in both clouds: toward the caller's origin when it lies outside both
-    (``VIEWPOINT_RANGE`` radii from each centre: a scan in its sensor's frame), else consistently over each
-    surface and outward (:func:`rpmnet_jax.geometry.normals.estimate_normals`).
+    normals face each cloud's sensor (``viewpoints``: :func:`rpmnet_jax.geometry.sensors.positions` of both clouds),
+    else are oriented consistently over each surface and outward
+    (:func:`rpmnet_jax.geometry.normals.estimate_normals`). ``"auto"``: toward the caller's origin in both clouds
+    when it lies outside both (``VIEWPOINT_RANGE`` radii from each centre: a scan in its sensor's frame).
     """
     if num_points < 3:
         raise ValueError(f"num_points must be >= 3, got {num_points}")
@@ -77,6 +80,8 @@ def prepare_pair(src_points, ref_points, src_normals=None, ref_normals=None, *, 
                                              MAX_POINTS, seed)
     ref, ref_n, ref_rows = cloud.clean_cloud("reference", ref_points, None if reestimate_normals else ref_normals,
                                              MAX_POINTS, seed + 1)
+    given = (None if isinstance(viewpoints, str) and viewpoints == "auto"
+             else tuple(sensors.positions([src, ref], viewpoints, ["the source", "the reference"])))
     if centering == "separate":
         (c_src, src_core), (c_ref, ref_core) = cloud.robust_centre(src), cloud.robust_centre(ref)
     else:
@@ -95,15 +100,19 @@ def prepare_pair(src_points, ref_points, src_normals=None, ref_normals=None, *, 
 
     i_src, i_ref = pick(src_u, src_core), pick(ref_u, ref_core)
     src_s, ref_s = src_u[i_src], ref_u[i_ref]
-    lo, hi = VIEWPOINT_RANGE
-    sensor = all(lo * r <= np.linalg.norm(c) <= hi * r for c, r in ((c_src, r_src), (c_ref, r_ref)))
-    view = lambda c: -c / scale if sensor else None  # the caller's origin in the normalised frame
-    n_src = src_n[i_src] if src_n is not None else normals_lib.estimate_normals(src_s, viewpoint=view(c_src))
-    n_ref = ref_n[i_ref] if ref_n is not None else normals_lib.estimate_normals(ref_s, viewpoint=view(c_ref))
+    if given is None:
+        lo, hi = VIEWPOINT_RANGE
+        at_origin = all(lo * r <= np.linalg.norm(c) <= hi * r for c, r in ((c_src, r_src), (c_ref, r_ref)))
+        views = (np.zeros(3), np.zeros(3)) if at_origin else (None, None)
+    else:
+        views = given
+    estimate = lambda x, v, c: normals_lib.estimate_normals(x, viewpoint=None if v is None else (v - c) / scale)
+    n_src = src_n[i_src] if src_n is not None else estimate(src_s, views[0], c_src)
+    n_ref = ref_n[i_ref] if ref_n is not None else estimate(ref_s, views[1], c_ref)
     src6 = np.concatenate([src_s, n_src], 1)[None].astype(np.float32)
     ref6 = np.concatenate([ref_s, n_ref], 1)[None].astype(np.float32)
     return PreparedPair(src6, ref6, src, ref, src_n, ref_n, c_src, c_ref, scale, src_rows, ref_rows, src_core,
-                        ref_core)
+                        ref_core, given)
 
 
 class RowNormals:
@@ -172,13 +181,14 @@ class Inputs(NamedTuple):
 
 def for_alignment(src_points, ref_points, src_normals, ref_normals, *, num_points: int, sampling: str, seed: int,
                   reestimate_normals: bool, centering: str, icp: bool, dense_points: int | None,
-                  max_correspondence_distance: float | None, relative_distance: float) -> Inputs:
+                  max_correspondence_distance: float | None, relative_distance: float, viewpoints="auto") -> Inputs:
     """:func:`prepare_pair`, then the full reference's k-d tree and normals and the dense samples (``dense_points``
     source points; ``None``: none). ``icp``: the clouds will be refined by ICP, which needs at least
     ``icp.MIN_PAIRS`` points per cloud (else 3 do). The correspondence distance defaults to ``relative_distance``
     × the common radius."""
     pair = prepare_pair(src_points, ref_points, src_normals, ref_normals, num_points=num_points, sampling=sampling,
-                        seed=seed, reestimate_normals=reestimate_normals, centering=centering)
+                        seed=seed, reestimate_normals=reestimate_normals, centering=centering,
+                        viewpoints=viewpoints)
     if icp:
         for name, n in (("source", len(pair.src)), ("reference", len(pair.ref))):
             if n < icp_lib.MIN_PAIRS:
