@@ -116,9 +116,10 @@ def emit(record: dict, path: str | None = None) -> None:
 
 # ---- what was measured where ----------------------------------------------------------------------------------
 
-def commit() -> str:
-    """The checkout's commit (``+`` when tracked files differ from it), or ``"unknown"``."""
-    git = ["git", "-C", REPO]
+def commit(repo: str = REPO) -> str:
+    """The checkout's commit (``+`` when tracked files differ from it), or ``"unknown"``; ``repo``: another
+    checkout (a ``git worktree`` of an earlier commit)."""
+    git = ["git", "-C", repo]
     try:
         head = subprocess.run(git + ["rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
         dirty = subprocess.run(git + ["status", "--porcelain", "--untracked-files=no"], capture_output=True,

@@ -14,6 +14,7 @@ warm run's seconds, ``ratio`` (cold over the fastest warm run) and each run's st
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import json
 import os
 import re
@@ -45,20 +46,19 @@ def main() -> None:
     p.add_argument("--warm", type=int, default=2, help="warm runs after the cold one (default 2)")
     p.add_argument("--repo", default=bench_utils.REPO)
     a = p.parse_args()
+    if a.warm < 1:
+        p.error(f"--warm must be at least 1, got {a.warm}")
     folder, repo = os.path.abspath(a.folder), os.path.abspath(a.repo)
     with tempfile.TemporaryDirectory() as caches:
         cold = run_once(repo, folder, caches)
         warm = [run_once(repo, folder, caches) for _ in range(a.warm)]
-    commit = subprocess.run(["git", "-C", repo, "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True).stdout.strip()
-    dirty = subprocess.run(["git", "-C", repo, "status", "--porcelain", "--untracked-files=no"],
-                           capture_output=True, text=True).stdout.strip()
-    print(json.dumps({"task": "cold_start", "commit": commit + ("+" if dirty else ""), "set": "FOLDER",
+    versions = {name: importlib.metadata.version(name) for name in ("numba", "jax")}
+    print(json.dumps({"task": "cold_start", "commit": bench_utils.commit(repo), "set": os.path.basename(folder),
                       "scans": sum(1 for f in os.listdir(folder) if f.endswith((".ply", ".pcd", ".npy", ".xyz"))),
                       "cold_seconds": cold["seconds"], "warm_seconds": [w["seconds"] for w in warm],
                       "ratio": round(cold["seconds"] / min(w["seconds"] for w in warm), 2),
                       "cold_stages": cold["stages"], "warm_stages": [w["stages"] for w in warm],
-                      **bench_utils.environment()}))
+                      **versions, **bench_utils.environment()}))
 
 
 if __name__ == "__main__":

@@ -132,14 +132,14 @@ def real_jobs(part: str, inits=SCAN_INITS):
             for mode in ("captured", "turned"):
                 src, motion = (s.clouds[a], np.eye(4)) if mode == "captured" else sets.turn(s.clouds[a], seed=k)
                 meta = {"set": name, "split": part, "rot_mag": None, "seed": 0, "setting": s.kind, "group": name,
-                        "idx": 1000 * a + b + (100000 if mode == "turned" else 0), "mode": mode}
+                        "idx": 2 * (len(s.names) * a + b) + (mode == "turned"), "mode": mode}
                 yield from job(meta, src, s.clouds[b], truth @ np.linalg.inv(motion))
     stations = rooms.stations(ROOM_SEEDS[part])
     for a in range(len(stations)):
         for b in range(a + 1, len(stations)):
             truth = np.linalg.inv(stations[b].pose) @ stations[a].pose
             meta = {"set": "room", "split": part, "rot_mag": None, "seed": ROOM_SEEDS[part], "setting": "room",
-                    "group": "room", "idx": 1000 * a + b, "mode": "captured"}
+                    "group": "room", "idx": 2 * (len(stations) * a + b), "mode": "captured"}
             yield from job(meta, stations[a].points, stations[b].points, truth)
 
 
@@ -149,7 +149,8 @@ def collect_real(a) -> None:
     inits = SCAN_INITS if a.part == "tune" else ("auto",)  # the report part: the answers align gives
     new = doubt_records.collect_jobs(real_jobs(a.part, inits), loading.load_params(None), a.cache, progress=False)
     rows = doubt_records.read(a.cache)
-    print(json.dumps({"part": a.part, "new": len(new), "pairs": len(rows), "wrong": int(doubt_records.labels(rows).sum())}))
+    print(json.dumps({"part": a.part, "new": len(new), "pairs": len(rows),
+                      "wrong": int(doubt_records.labels(rows).sum())}))
 
 
 def fit(a) -> None:
@@ -199,8 +200,8 @@ MAX_FLAGGED_RIGHT = 0.02  # the default bar flags at most this share of the righ
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("command", choices=("collect", "collect-scans", "collect-real", "fit"))
-    p.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "rpmnet_doubt", "train.jsonl"),
-                   help="the records (fit: several, comma-separated)")
+    p.add_argument("--cache", default=None, help="the records (fit: several, comma-separated; default "
+                   "TMPDIR/rpmnet_doubt/train.jsonl, for collect-real real_PART.jsonl: never the training file)")
     p.add_argument("--data-roots", default=DATA_ROOTS)
     p.add_argument("--minutes", type=float, default=55.0)
     p.add_argument("--meshes", type=int, default=12, help="collect-scans: train-file meshes to scan")
@@ -210,6 +211,8 @@ def main(argv=None) -> None:
     p.add_argument("--threshold", type=float, default=None,
                    help="the likely_wrong bar (default: the lowest flagging <= 2%% of right training answers)")
     a = p.parse_args(argv)
+    folder = os.path.join(tempfile.gettempdir(), "rpmnet_doubt")
+    a.cache = a.cache or os.path.join(folder, f"real_{a.part}.jsonl" if a.command == "collect-real" else "train.jsonl")
     os.makedirs(os.path.dirname(os.path.abspath(a.cache.split(",")[0])), exist_ok=True)
     {"collect": collect, "collect-scans": collect_scans, "collect-real": collect_real, "fit": fit}[a.command](a)
 

@@ -309,6 +309,8 @@ def test_a_pcd_viewpoint_is_its_sensor_and_the_other_follows_viewpoints(tmp_path
     assert register_cli.main([str(tmp_path / "src.pcd"), str(tmp_path / "ref.pcd"), "--viewpoints", "none",
                               "--init", "classical"]) == 0
     assert seen["viewpoints"][0].tolist() == [1.5, -2.0, 3.0] and seen["viewpoints"][1] == "none"
+    assert register_cli.main([str(tmp_path / "ref.pcd"), str(tmp_path / "ref.pcd"), "--init", "classical"]) == 0
+    assert seen["viewpoints"] == "auto"  # no VIEWPOINT in either file: align's own pair rule, as before
     with pytest.raises(SystemExit) as stop:  # argparse's own one-line usage error
         register_cli.main([str(tmp_path / "src.pcd"), str(tmp_path / "ref.pcd"), "--viewpoints", "sensor"])
     assert stop.value.code == 2

@@ -100,12 +100,14 @@ def _median(values, m):
 @numba.njit(cache=True)
 def _solve6(a, b):
     """``x (6,)`` with ``a (6, 6) x = b (6,)``, ``a`` symmetric positive definite (the damped normal equations):
-    Cholesky, ``a`` and ``b`` overwritten. ``np.linalg.solve`` takes 4 s to compile in Numba (LAPACK's copies and
-    their shape-error messages), this 0.6 s."""
+    Cholesky, ``a`` and ``b`` overwritten; zeros (no step) when ``a`` is not (a NaN from a degenerate pair).
+    ``np.linalg.solve`` takes 4 s to compile in Numba (LAPACK's copies and their shape-error messages), this 0.6 s."""
     for j in range(6):
         d = a[j, j]
         for k in range(j):
             d -= a[j, k] * a[j, k]
+        if not d > 0.0:
+            return np.zeros(6)
         d = math.sqrt(d)
         a[j, j] = d
         for i in range(j + 1, 6):

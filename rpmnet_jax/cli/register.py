@@ -39,7 +39,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="where each cloud's sensor stood (estimated normals face it; with both known, an answer that "
                         "puts one cloud where the other's sensor saw through loses): auto (default: the frame origin "
                         "when both clouds look taken from it), origin (each cloud is in its sensor's frame), none "
-                        "(objects). A PCD with a VIEWPOINT has its sensor there")
+                        "(objects). A PCD with a VIEWPOINT has its sensor there (the other cloud then follows this "
+                        "rule as rpmnet-register-scans applies it to one scan)")
     p.add_argument("--columns", default=None,
                    help="what the columns of the input files are, by position, e.g. x,y,z,r,g,b (names: x y z nx ny nz "
                         "r g b or red green blue, intensity, _ to skip); default: the files' own names (PLY, PCD, a "
@@ -85,7 +86,9 @@ def main(argv=None) -> int:
         ref_columns = args.columns if args.ref_columns is None else args.ref_columns
         target = cloud_io.read(args.ref, columns=ref_columns)
         ref, ref_n = target.points, target.normals
-        viewpoints = tuple(args.viewpoints if c.viewpoint is None else c.viewpoint for c in (source, target))
+        stored = [c.viewpoint for c in (source, target)]  # a PCD's VIEWPOINT; else the rule of --viewpoints
+        viewpoints = args.viewpoints if all(v is None for v in stored) else tuple(
+            args.viewpoints if v is None else v for v in stored)
         if args.checkpoint is None and not loading.has_default():
             raise ValueError("no shipped model in this install; pass --checkpoint")
         t0 = time.time()

@@ -39,7 +39,11 @@ def positions(clouds, viewpoints, labels=None) -> list:
     labels = labels or [f"scan {i}" for i in range(len(clouds))]
     if isinstance(viewpoints, str):
         viewpoints = [viewpoints] * len(clouds)
-    viewpoints = list(viewpoints)
+    try:
+        viewpoints = list(viewpoints)
+    except TypeError:  # None, a number
+        raise ValueError(f"viewpoints must be one of {VIEWPOINTS} or one per scan (a rule, a position or None), "
+                         f"got {viewpoints!r}") from None
     if len(viewpoints) != len(clouds):
         raise ValueError(f"got {len(viewpoints)} viewpoints for {len(clouds)} scans")
     return [_position(label, c, v) for label, c, v in zip(labels, clouds, viewpoints)]

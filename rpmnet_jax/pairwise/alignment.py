@@ -130,9 +130,11 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, init: s
     cloud's sensor where one is known. ``viewpoints``: where the sensors stood: ``"auto"`` (the caller's origin when
     both clouds lie 2-100 radii from it, for the normals, and when both look taken from it, for the free-space
     check), ``"origin"`` (each cloud in its sensor's frame), ``"none"`` (no sensor: closed objects), or
-    ``(source, reference)``, each a ``(3,)`` position in its cloud's coordinates, one of those words, or ``None``
-    (:func:`rpmnet_jax.geometry.sensors.positions`). With both sensors known, an answer that puts one cloud in
-    the space the other's sensor saw through loses to a candidate that does not (else it is ``likely_wrong``).
+    ``(source, reference)``, each a ``(3,)`` position in its cloud's coordinates, ``None``, or one of those words
+    as :func:`rpmnet_jax.geometry.sensors.positions` reads it for one scan (there ``"auto"`` is the scan sets' rule:
+    the origin when the cloud surrounds it or its spacing grows with the distance from it). With both sensors
+    known, an answer that puts one cloud in the space the other's sensor saw through loses to a candidate that does
+    not (else it is ``likely_wrong``).
     ``checkpoint``: orbax dir, ``.npz`` or official ``.pth``; default the shipped model (or pass ``params``).
     The rest is in options objects (:mod:`rpmnet_jax.pairwise.options`): ``network_options`` what the network sees
     (points per cloud, sampling, centring, iterations), ``refine_options`` the ICP's sample size and stopping,
