@@ -36,10 +36,10 @@ The pipeline around the paper's network (which itself is :func:`rpmnet_jax.regis
 
 Scans whose sensors are known (``viewpoints``), or taken from their frame origins (scanner stations, RGB-D frames,
 full-density sweeps: their spacing grows with the distance from it, :func:`rpmnet_jax.geometry.sensors.taken_from`,
-both clouds): the best distinct
-candidate that keeps each cloud out of the space the other's sensor saw through
+both clouds): the best distinct candidate that keeps each cloud out of the space the other's sensor saw through
 (:mod:`rpmnet_jax.geometry.visibility`) is the answer (a room's half turn fits its walls as well as the truth and
-puts its furniture there); when none does, the answer is ``likely_wrong``.
+puts its furniture there), and the candidates that do not keep out are no rivals: they leave ``candidates``, the
+ambiguity and the doubt; when none keeps out, the answer is ``likely_wrong``.
 
 A cloud of more than ``prepare.MAX_POINTS`` (200,000) finite rows is registered and scored on a seeded random
 subset of that many (what Open3D's recipe gets from voxel downsampling first): ``fitness``, ``inlier_rmse`` and
@@ -226,7 +226,7 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
     """The :class:`Alignment` of the best selected candidate, in the caller's units and rows: its fitness, RMSE and
     correspondences on the full clouds and the point-to-plane information over them (the reference's normals
     where the caller gave none: those the dense samples estimated, and the missing rows)."""
-    selection, blocked = _free_space_first(inputs, selection, free_space)
+    selection, blocked = _clear_of_free_space(inputs, selection, free_space)
     pair, best = inputs.pair, selection.ranked[0]
     answers = tuple(Answer(pair.to_callers_units(c.transform[:3]), float(c.score[0]), float(c.score[1]),
                            -float(c.score[2]) * pair.scale, c.init, tuple(support))
@@ -270,11 +270,13 @@ def _free_space(inputs: prepare.Inputs) -> tuple | None:
     return src, ref, visibility.range_image(src, seen_from[0]), visibility.range_image(ref, seen_from[1])
 
 
-def _free_space_first(inputs: prepare.Inputs, selection: candidates_lib.Selection, free_space) -> tuple:
-    """With ``free_space`` (:func:`_free_space`): the selection with its best candidate that keeps each cloud out of
-    the space the other's sensor saw through (:mod:`rpmnet_jax.geometry.visibility`) moved to the front (a room's
-    half turn puts its furniture there), and whether the answer still does (no candidate keeps out: it is then
-    reported ``likely_wrong``). Otherwise the selection as it is, and False."""
+def _clear_of_free_space(inputs: prepare.Inputs, selection: candidates_lib.Selection, free_space) -> tuple:
+    """With ``free_space`` (:func:`_free_space`): the selection of the candidates that keep each cloud out of the
+    space the other's sensor saw through (:mod:`rpmnet_jax.geometry.visibility`), best first, their ambiguity
+    measured among themselves: an answer that puts one cloud where the other's sensor saw through (a room's half
+    turn puts its furniture there) is no rival, and the doubt model (step 6) does not count it as one. When no
+    candidate keeps out, the selection as it is and True (the answer is then reported ``likely_wrong``).
+    Otherwise (no free space known) the selection as it is, and False."""
     if free_space is None:
         return selection, False
     src, ref, src_image, ref_image = free_space
@@ -282,9 +284,9 @@ def _free_space_first(inputs: prepare.Inputs, selection: candidates_lib.Selectio
     clear = [visibility.violation(src, src_image, ref, ref_image, inputs.pair.to_callers_units(c.transform[:3]),
                                   margin)
              <= visibility.MAX_FREE_SPACE_SHARE for c in selection.ranked]
-    if clear[0] or not any(clear):
-        return selection, not clear[0]
-    k = clear.index(True)
-    order = [k] + [i for i in range(len(clear)) if i != k]
-    support = tuple(selection.support[i] for i in order) if selection.support else selection.support
-    return selection._replace(ranked=[selection.ranked[i] for i in order], support=support), False
+    if not any(clear):
+        return selection, True
+    keep = [i for i, ok in enumerate(clear) if ok]
+    ranked = [selection.ranked[i] for i in keep]
+    support = tuple(selection.support[i] for i in keep) if selection.support else selection.support
+    return candidates_lib.Selection(ranked, candidates_lib.is_ambiguous(ranked), support), False
