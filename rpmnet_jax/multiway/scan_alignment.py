@@ -213,9 +213,9 @@ def _pair_edges(run: _Run) -> None:
     with clock.stage("candidates"):
         pairs, scores = preparation.pairs_to_register(run.scans, o.all_pairs_up_to, o.neighbours, o.seed)
     weak = pairs
+    visible = edge_graph.free_space_check(run.scans, run.prepared.sensors, run.prepared.voxel)
     if o.classical:
         with clock.stage("classical"):
-            visible = edge_graph.free_space_check(run.scans, run.prepared.sensors, run.prepared.voxel)
 
             def classical(todo, stage):
                 return dict(zip(todo, edge_graph.screened(engine.classical_edges(todo, run.tick(stage)), run.max_dist,
@@ -237,7 +237,7 @@ def _pair_edges(run: _Run) -> None:
     if weak:
         with clock.stage("network"):
             run.edges += [e for e in engine.network_edges(weak, run.tick("network edges"))
-                          if run.pair_edge(e)]
+                          if run.pair_edge(e) and visible(e)]  # the classical edges' free-space check too
             run.counts["network"] = len(weak)
 
 
