@@ -28,6 +28,20 @@ def test_voxel_downsample_keeps_a_normal_where_the_cube_s_normals_cancel():
     np.testing.assert_array_equal(got_n, [[0.0, 0.0, 1.0]])
 
 
+@pytest.mark.parametrize("side", [0.05, 1e-9])  # 1e-9: more than 2^62 cubes, the rows' own sort
+def test_cube_ids_order_cubes_as_their_integer_coordinates(side):
+    """One id per cube, ordered as the cubes' (x, y, z) lexicographically: ``np.unique`` of the ids gives the
+    cubes, their first rows and counts that ``np.unique(..., axis=0)`` gives of the coordinates."""
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-1.0, 2.0, size=(3000, 3))
+    pts[1500:] = pts[:1500] + rng.uniform(0, 1e-12, size=(1500, 3))  # cubes shared by several rows
+    keys = np.floor((pts - pts.min(axis=0)) / side).astype(np.int64)
+    want = np.unique(keys, axis=0, return_index=True, return_inverse=True, return_counts=True)[1:]
+    got = np.unique(sampling.cube_ids(pts, side), return_index=True, return_inverse=True, return_counts=True)[1:]
+    for w, g in zip(want, got):
+        np.testing.assert_array_equal(g.ravel(), w.ravel())
+
+
 def test_sample_indices_are_sorted_distinct_rows():
     rng = np.random.default_rng(0)
     idx = sampling.sample_indices(rng, 100, 30)

@@ -13,8 +13,8 @@ def voxel_downsample(points: np.ndarray, normals: np.ndarray | None, voxel_size:
     if not voxel_size > 0:
         raise ValueError(f"voxel_size must be > 0, got {voxel_size}")
     points = np.asarray(points, np.float64)
-    keys = np.floor((points - points.min(axis=0)) / voxel_size).astype(np.int64)
-    _, first, inverse, counts = np.unique(keys, axis=0, return_index=True, return_inverse=True, return_counts=True)
+    _, first, inverse, counts = np.unique(cube_ids(points, voxel_size), return_index=True, return_inverse=True,
+                                          return_counts=True)
     inverse = inverse.ravel()
 
     def summed(x):
@@ -29,6 +29,17 @@ def voxel_downsample(points: np.ndarray, normals: np.ndarray | None, voxel_size:
     fallback = fallback / np.maximum(np.linalg.norm(fallback, axis=1, keepdims=True), 1e-300)
     out_normals = np.where(length > 1e-6 * counts[:, None], total / np.maximum(length, 1e-300), fallback)
     return out, out_normals
+
+
+def cube_ids(points: np.ndarray, side: float) -> np.ndarray:
+    """``(N,)`` int64 id of the cube of ``side`` holding each of ``points (N, 3)``, ordered as the cubes' integer
+    coordinates ``(x, y, z)`` lexicographically (what ``np.unique(..., axis=0)`` sorts by: one 1-D sort instead of a
+    sort of rows, ~10x faster at 40k points); the coordinates themselves where the grid has more than 2^62 cubes."""
+    keys = np.floor((points - points.min(axis=0)) / side).astype(np.int64)
+    span = keys.max(axis=0) + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0 ** 62:
+        return np.unique(keys, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
+    return (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
 
 
 def sample_indices(rng: np.random.Generator, n_total: int, n: int) -> np.ndarray:

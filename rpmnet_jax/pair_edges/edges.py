@@ -64,8 +64,7 @@ def make_scan(points: np.ndarray, normals: np.ndarray, feature_radius: float | N
         return scan
     keypoints = np.arange(len(points))
     if voxel > 0:
-        cubes = np.floor((points - points.min(axis=0)) / (KEYPOINT_VOXELS * voxel)).astype(np.int64)
-        keypoints = np.sort(np.unique(cubes, axis=0, return_index=True)[1])
+        keypoints = np.sort(np.unique(sampling.cube_ids(points, KEYPOINT_VOXELS * voxel), return_index=True)[1])
     keypoints = keypoints[sampling.sample_indices(np.random.default_rng(seed), len(keypoints), FEATURE_POINTS)]
     features = fpfh.fpfh(points, normals, feature_radius, FEATURE_NEIGHBOURS, scan.tree)[keypoints]
     return scan._replace(keypoints=keypoints, features=features)
