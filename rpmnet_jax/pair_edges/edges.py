@@ -142,7 +142,7 @@ def network_starts(params, scans, pairs, *, cfg, num_points: int, num_iters: int
     fn = registration.jitted(cfg, int(num_iters), "transforms")
     groups = {}
     for p, pair in enumerate(prepared):
-        groups.setdefault((pair.src6.shape[1], pair.ref6.shape[1]), []).append(p)
+        groups.setdefault((len(pair.samples[0]), len(pair.samples[1])), []).append(p)
     for members in groups.values():
         for chunk, padded in batches(members, batch_size):
             src = np.concatenate([prepared[p].src6 for p in padded])

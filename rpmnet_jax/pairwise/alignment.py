@@ -242,7 +242,7 @@ def _report(inputs: prepare.Inputs, selection: candidates_lib.Selection, src_poi
     aligned = se3.apply(transform, np.asarray(src_points, np.float64))  # every row of the caller's
     rows = np.stack([pair.src_rows[s.correspondences[:, 0]], pair.ref_rows[s.correspondences[:, 1]]], 1)
     a = Alignment(transform, aligned, pair.to_callers_units(best.network_transforms), best.confidence,
-                  (pair.src6.shape[1], pair.ref6.shape[1]), s.fitness, s.inlier_rmse, rows, best.converged,
+                  (len(pair.samples[0]), len(pair.samples[1])), s.fitness, s.inlier_rmse, rows, best.converged,
                   best.num_iterations, inputs.max_distance, best.init, clock.timings(), answers,
                   selection.ambiguous, information)
     p, likely = doubt.p_wrong(a)  # 6. how likely the answer is wrong: read off it, never changes it

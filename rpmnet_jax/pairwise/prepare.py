@@ -13,6 +13,8 @@ are still scored.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from typing import NamedTuple
 
 import numpy as np
@@ -27,11 +29,12 @@ MAX_POINTS = 200_000  # a denser cloud is registered and scored on a seeded rand
 # (what Open3D's recipe gets from voxel downsampling first: two 10M-point scans cost what 200k points cost)
 
 
-class PreparedPair(NamedTuple):
-    """A pair normalised for the model, and how to map a unit-sphere answer back to the caller's units."""
+@dataclasses.dataclass(eq=False)
+class PreparedPair:
+    """A pair normalised for the model, and how to map a unit-sphere answer back to the caller's units. The network's
+    clouds (:attr:`src6`, :attr:`ref6`) are made when first read: a classical answer on dense clouds never needs
+    their normals."""
 
-    src6: np.ndarray  # (1, J, 6) float32: centred, scaled, downsampled source xyz + unit normals
-    ref6: np.ndarray  # (1, K, 6) float32
     src: np.ndarray  # (N, 3) the cleaned source (NaN/inf rows dropped; at most MAX_POINTS rows), caller's units
     ref: np.ndarray  # (M, 3) the cleaned reference (the same), caller's units
     src_normals: np.ndarray | None  # (N, 3) unit normals of ``src`` when given (and not re-estimated)
@@ -43,8 +46,27 @@ class PreparedPair(NamedTuple):
     ref_rows: np.ndarray  # (M,) int64
     src_core: np.ndarray  # (N,) bool: not a stray point (geometry.cloud.robust_centre); only these are sampled
     ref_core: np.ndarray  # (M,) bool
-    sensors: tuple | None = None  # the caller's (source, reference) sensors, each (3,) or None, caller's units;
+    sensors: tuple | None  # the caller's (source, reference) sensors, each (3,) or None, caller's units;
     # None: the automatic rules (VIEWPOINT_RANGE for the normals, the spacing rule for the free space)
+    samples: tuple  # (source, reference) rows of ``src``/``ref`` the network sees, (J,) and (K,)
+    views: tuple  # (source, reference) sensor in the normalised frame the samples' estimated normals face, or None
+
+    @functools.cached_property
+    def src6(self) -> np.ndarray:
+        """``(1, J, 6)`` float32: the centred, scaled, downsampled source xyz + unit normals."""
+        return self._network_cloud(0)
+
+    @functools.cached_property
+    def ref6(self) -> np.ndarray:
+        """``(1, K, 6)`` float32: the same of the reference."""
+        return self._network_cloud(1)
+
+    def _network_cloud(self, which: int) -> np.ndarray:
+        rows, name = self.samples[which], ("src", "ref")[which]
+        points, given = (self.src, self.src_normals) if which == 0 else (self.ref, self.ref_normals)
+        unit = self.to_unit(points[rows], name)
+        nrm = given[rows] if given is not None else normals_lib.estimate_normals(unit, viewpoint=self.views[which])
+        return np.concatenate([unit, nrm], 1)[None].astype(np.float32)
 
     def to_callers_units(self, t_unit) -> np.ndarray:
         """``(..., 3, 4)`` transforms between the normalised clouds → ``(..., 4, 4)`` in the caller's units."""
@@ -99,20 +121,15 @@ def prepare_pair(src_points, ref_points, src_normals=None, ref_normals=None, *, 
         return rows[sampling_lib.sample_indices(rng, len(rows), num_points)]
 
     i_src, i_ref = pick(src_u, src_core), pick(ref_u, ref_core)
-    src_s, ref_s = src_u[i_src], ref_u[i_ref]
     if given is None:
         lo, hi = VIEWPOINT_RANGE
         at_origin = all(lo * r <= np.linalg.norm(c) <= hi * r for c, r in ((c_src, r_src), (c_ref, r_ref)))
         views = (np.zeros(3), np.zeros(3)) if at_origin else (None, None)
     else:
         views = given
-    estimate = lambda x, v, c: normals_lib.estimate_normals(x, viewpoint=None if v is None else (v - c) / scale)
-    n_src = src_n[i_src] if src_n is not None else estimate(src_s, views[0], c_src)
-    n_ref = ref_n[i_ref] if ref_n is not None else estimate(ref_s, views[1], c_ref)
-    src6 = np.concatenate([src_s, n_src], 1)[None].astype(np.float32)
-    ref6 = np.concatenate([ref_s, n_ref], 1)[None].astype(np.float32)
-    return PreparedPair(src6, ref6, src, ref, src_n, ref_n, c_src, c_ref, scale, src_rows, ref_rows, src_core,
-                        ref_core, given)
+    views = tuple(None if v is None else (v - c) / scale for v, c in zip(views, (c_src, c_ref)))
+    return PreparedPair(src, ref, src_n, ref_n, c_src, c_ref, scale, src_rows, ref_rows, src_core, ref_core, given,
+                        (i_src, i_ref), views)
 
 
 class RowNormals:

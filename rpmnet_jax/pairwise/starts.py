@@ -58,7 +58,7 @@ def classical_starts(pair: prepare.PreparedPair, count: int, seed: int) -> list:
     right from it, the two 90° ones settled without the network (0.23 s each against 2.5 s), where the
     1,024 samples gave a right answer to bun180 → bun090 at ``p_wrong`` 0.59 and a 45.7° wrong one to
     bun270 → bun180."""
-    samples = pair.src6.shape[1]
+    samples = len(pair.samples[0])
     if min(np.count_nonzero(pair.src_core), np.count_nonzero(pair.ref_core)) >= DENSE_FACTOR * samples:
         ((src, src_n), (ref, ref_n)), voxel = _voxel_grids(pair)
         hyp = feature_ransac.from_clouds(src, src_n, ref, ref_n, max_distance=1.5 * voxel, radius=5 * voxel,
