@@ -107,7 +107,7 @@ def test_pipeline_results_are_scored_by_nearest_neighbours_and_deterministic(ran
 
 @pytest.mark.parametrize("bad", [dict(top_k=0), dict(hypotheses="dodecahedral"), dict(points=2), dict(iters=0),
                                  dict(polish_points=0), dict(auto_fitness=1.5),
-                                 dict(network_fitness=-0.1)])
+                                 dict(network_fitness=-0.1), dict(network_on_dense=1)])
 def test_global_options_are_checked_when_made(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         rpmnet_jax.GlobalOptions(**bad)
@@ -210,3 +210,35 @@ def test_deterministic_under_a_seed_and_the_global_screen_follows_it(random_weig
     first = screen(0)
     np.testing.assert_array_equal(screen(0), first)
     assert not np.allclose(screen(1), first)
+
+
+def _sliding_box_crops(rng, n: int):
+    """Two overlapping crops of a box's surface (the source's x > -0.2, the reference's x < 0.2), the reference turned
+    and moved: a pair that slides along the box, so its classical answer is ambiguous (``n`` points drawn each)."""
+    half = np.array([1.0, 0.6, 0.3])
+
+    def surface():
+        p = rng.uniform(-1, 1, size=(n, 3)) * half
+        axis = rng.integers(0, 3, n)
+        p[np.arange(n), axis] = np.sign(rng.normal(size=n)) * half[axis]
+        return p
+
+    src, ref = surface(), surface()
+    src, ref = src[src[:, 0] > -0.2], ref[ref[:, 0] < 0.2]
+    rot = Rotation.from_euler("xyz", [20, 30, 40], degrees=True).as_matrix()
+    return src, ref @ rot.T + [0.1, 0.2, 0.3]
+
+
+def test_auto_keeps_the_classical_answer_of_dense_clouds_and_runs_the_network_on_sparse_ones():
+    """An ambiguous classical answer runs the network on crops of 1,024-point size (the paper's inputs), not on
+    dense clouds (both at least DENSE_FACTOR x the network's samples: scans), unless ``network_on_dense``."""
+    from rpmnet_jax.pairwise import starts
+    rng = np.random.default_rng(0)
+    src, ref = _sliding_box_crops(rng, 12_000)
+    assert min(len(src), len(ref)) >= starts.DENSE_FACTOR * rpmnet_jax.NetworkOptions().points
+    kept = rpmnet_jax.align(src, ref)
+    assert kept.ambiguous and "network" not in kept.timings and kept.init == "classical"
+    asked = rpmnet_jax.align(src, ref, global_options=rpmnet_jax.GlobalOptions(network_on_dense=True))
+    assert asked.ambiguous and "network" in asked.timings
+    sparse_src, sparse_ref = (c[rng.choice(len(c), 1500, replace=False)] for c in (src, ref))
+    assert "network" in rpmnet_jax.align(sparse_src, sparse_ref).timings

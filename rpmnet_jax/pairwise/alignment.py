@@ -158,6 +158,8 @@ def align(src_points, ref_points, src_normals=None, ref_normals=None, *, init: s
                      seed)
     opts = global_options  # 2-3. starts, each refined and scored as it comes (auto: pairwise.auto decides)
     found = search.classical(init) if init != "local" else []
+    if init == "auto" and auto.keeps_classical(found, starts_lib.dense(inputs.pair), opts):
+        return _report(inputs, search.select(found), src_points, clock, free_space)
     if init == "auto" and found and auto.may_stand(opts) and auto.weak(found, opts):
         classical_answer = _report(inputs, search.select(found), src_points, clock, free_space)
         if auto.stands(classical_answer, opts):

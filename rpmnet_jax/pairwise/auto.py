@@ -1,5 +1,6 @@
-"""``init="auto"``'s whole decision in one function (:func:`runs`): after the classical candidates, whether the
-network runs from the identity; after it, whether the network's global search runs.
+"""``init="auto"``'s whole decision: on dense clouds the classical answer (:func:`keeps_classical`); else
+(:func:`runs`) after the classical candidates, whether the network runs from the identity; after it, whether the
+network's global search runs.
 
 Its bars, every one of them, are :class:`~rpmnet_jax.pairwise.options.GlobalOptions` fields or named here:
 ``network_fitness`` (0.6: a best classical answer below it is weak), ``network_doubt`` (0.15: a weak answer stands
@@ -14,6 +15,13 @@ from __future__ import annotations
 from rpmnet_jax.pairwise import candidates as candidates_lib
 
 DOUBT_FLOOR = 0.45  # below this fitness a weak answer runs the network whatever its doubt (docs/pipeline.md)
+
+
+def keeps_classical(found: list, dense: bool, opts) -> bool:
+    """On ``dense`` clouds (``starts.dense``: scans, whose hypotheses come from a voxel grid of the whole clouds) the
+    best classical answer is kept, whatever its doubt, when there is one and ``opts.network_on_dense`` is off: on
+    the dense tuning pairs the network's fallback lost more answers than it rescued (docs/pipeline.md, step 2)."""
+    return bool(found) and dense and not opts.network_on_dense
 
 
 def weak(found: list, opts) -> bool:

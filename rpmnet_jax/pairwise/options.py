@@ -82,7 +82,10 @@ class GlobalOptions:
     flip scores close to it), or when its fitness is below ``network_fitness`` (always at 1) and either below
     ``auto.DOUBT_FLOOR`` (0.45) or the answer it would give is at least ``network_doubt`` likely wrong
     (``p_wrong`` of :mod:`rpmnet_jax.pairwise.doubt`, default 0.15; 0: the network runs on every weak answer).
-    The whole decision: :mod:`rpmnet_jax.pairwise.auto`.
+    On dense clouds (both at least ``starts.DENSE_FACTOR`` × the network's samples: scans, not crops) ``auto`` keeps
+    the best classical answer (reported with its ``p_wrong``) and runs the network only when RANSAC found no
+    hypothesis; ``network_on_dense=True`` gives them the crops' rule above. The whole decision:
+    :mod:`rpmnet_jax.pairwise.auto`.
     The network's global search (``init="global"``, or ``"auto"`` when no candidate reaches a fitness of
     ``auto_fitness`` and the best is not confirmed by a classical and the network's own start together; at 1:
     always): ``hypotheses``, ``octahedral`` (24) or ``icosahedral`` (60) rotation starts, screened
@@ -104,6 +107,10 @@ class GlobalOptions:
     # chosen on the results tables' 8 rows, both test files (tuning data: numbers on that data are not held-out)
     network_fitness: float = 0.6
     network_doubt: float = NETWORK_DOUBT
+    # False: chosen on dense tuning pairs (the Stanford bunny's 90 ordered pairs, the real-scan benchmark's tune
+    # parts, simulated range scans of training meshes), where the network's fallback lost more answers than it
+    # rescued at 2.5x the time (docs/pipeline.md, step 2)
+    network_on_dense: bool = False
 
     def __post_init__(self):
         checks.require_choice("GlobalOptions.hypotheses", self.hypotheses, HYPOTHESIS_SETS)
@@ -111,6 +118,8 @@ class GlobalOptions:
             checks.require_at_least(f"GlobalOptions.{name}", getattr(self, name), least)
         for name in ("auto_fitness", "network_fitness", "network_doubt"):
             checks.require_fraction(f"GlobalOptions.{name}", getattr(self, name))
+        if not isinstance(self.network_on_dense, bool):
+            raise ValueError(f"GlobalOptions.network_on_dense must be True or False, got {self.network_on_dense!r}")
 
 
 def check(init: str, refine: str, max_correspondence_distance: float | None, network_options, refine_options,

@@ -58,8 +58,7 @@ def classical_starts(pair: prepare.PreparedPair, count: int, seed: int) -> list:
     right from it, the two 90° ones settled without the network (0.23 s each against 2.5 s), where the
     1,024 samples gave a right answer to bun180 → bun090 at ``p_wrong`` 0.59 and a 45.7° wrong one to
     bun270 → bun180."""
-    samples = len(pair.samples[0])
-    if min(np.count_nonzero(pair.src_core), np.count_nonzero(pair.ref_core)) >= DENSE_FACTOR * samples:
+    if dense(pair):
         ((src, src_n), (ref, ref_n)), voxel = _voxel_grids(pair)
         hyp = feature_ransac.from_clouds(src, src_n, ref, ref_n, max_distance=1.5 * voxel, radius=5 * voxel,
                                          max_nn=100, seed=seed, top_k=count)
@@ -69,6 +68,14 @@ def classical_starts(pair: prepare.PreparedPair, count: int, seed: int) -> list:
     share = hyp.inliers / max(hyp.num_correspondences, 1)
     keep = hyp.inliers >= CLASSICAL_KEEP * hyp.inliers.max(initial=0)  # a flip stays; stray samples do not
     return [Start("classical", t[None, :3], float(c), t) for t, c, k in zip(hyp.transforms, share, keep) if k]
+
+
+def dense(pair: prepare.PreparedPair) -> bool:
+    """Both clouds hold at least :data:`DENSE_FACTOR` × the network's samples of non-stray points: their classical
+    hypotheses come from a voxel grid of the whole clouds (:func:`classical_starts`), and ``init="auto"`` keeps
+    the classical answer (``GlobalOptions.network_on_dense``)."""
+    least = min(np.count_nonzero(pair.src_core), np.count_nonzero(pair.ref_core))
+    return least >= DENSE_FACTOR * len(pair.samples[0])
 
 
 def _voxel_grids(pair: prepare.PreparedPair) -> tuple:
