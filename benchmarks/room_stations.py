@@ -8,6 +8,10 @@ A pair is right within 1° and 5 cm (measured at the source station); a rectangu
 a half turn, so a wrong answer is mostly that flip. ``likely_wrong`` flags are counted on right and wrong answers.
 
     python benchmarks/room_stations.py [--methods rpmnet_jax,open3d,kiss_small_gicp,rpmnet_jax_scans,open3d_multiway]
+        [--seed 0] [--step 0.6]
+
+``--step``: the scanner's angular step in degrees (0.6: 150,000 points a station; 0.3: ~600,000; 0.165: ~2,000,000),
+for how time and peak memory grow with the points per scan.
 """
 
 from __future__ import annotations
@@ -37,9 +41,9 @@ def _errors(estimate, truth) -> tuple:
     return float(se3.rotation_angle_deg(d[:3, :3])), float(np.linalg.norm(d[:3, 3]))
 
 
-def run(method: str, seed: int) -> dict:
+def run(method: str, seed: int, step: float) -> dict:
     from rpmnet_jax.simulation import rooms
-    stations = rooms.stations(seed)
+    stations = rooms.stations(seed, step)
     clouds, poses = [s.points for s in stations], np.stack([s.pose for s in stations])
     rows = []
     if method in PAIR_METHODS:
@@ -84,7 +88,8 @@ def run(method: str, seed: int) -> dict:
         right = [r["rotation_deg"] <= RIGHT_DEG and r["translation"] <= RIGHT_M for r in rows]
         summary = {"right": f"{sum(right)}/{len(rows)}", "seconds": seconds,
                    "silently_wrong": sum(not ok and not r["named"] for r, ok in zip(rows, right))}
-    return {"benchmark": "room_stations", "method": method, "seed": seed, "points": [len(c) for c in clouds],
+    return {"benchmark": "room_stations", "method": method, "seed": seed, "step_deg": step,
+            "points": [len(c) for c in clouds], "input_mb": sum(c.nbytes for c in clouds) / 2 ** 20,
             "summary": summary, "rows": rows, "peak_rss_mb": bench_utils.peak_rss_mb(),
             "commit": bench_utils.commit(), **bench_utils.environment()}
 
@@ -93,12 +98,15 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--methods", default=",".join(PAIR_METHODS + SCAN_METHODS))
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--step", type=float, default=None, help="angular step, degrees (default the simulator's 0.6)")
     p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.worker:
-        return print(json.dumps(run(a.worker, a.seed)), flush=True)
+        from rpmnet_jax.simulation import rooms
+        return print(json.dumps(run(a.worker, a.seed, a.step or rooms.STEP_DEG)), flush=True)
     for method in a.methods.split(","):  # each method in a process of its own: its own imports, its own peak
-        subprocess.run([sys.executable, os.path.abspath(__file__), "--worker", method, "--seed", str(a.seed)],
+        step = [] if a.step is None else ["--step", str(a.step)]
+        subprocess.run([sys.executable, os.path.abspath(__file__), "--worker", method, "--seed", str(a.seed)] + step,
                        check=False)
 
 
