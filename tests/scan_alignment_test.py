@@ -132,6 +132,29 @@ def test_a_placement_flagged_likely_wrong_is_reported(monkeypatch):
     assert pending == [] and doubtful == [1] and np.isfinite(poses).all()
 
 
+def test_a_placement_in_another_scan_s_free_space_is_named(monkeypatch):
+    """Step 4 with the free-space check: a room station registered onto the placed one a half turn off (its walls
+    and furniture where the placed station saw through) is placed but named; registered right, it is not named."""
+    import types
+    from rpmnet_jax.simulation import rooms
+
+    stations = rooms.stations(0)[:2]
+    prepared = preparation.prepare_scans([st.points for st in stations], None, None, viewpoints="origin")
+    visible = edge_graph.free_space_check(prepared.scans, prepared.sensors, prepared.voxel)
+    truth = np.linalg.inv(stations[0].pose) @ stations[1].pose
+    turn = np.eye(4)
+    turn[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)
+    for answer, named in ((truth @ turn, [1]), (truth, [])):
+        monkeypatch.setattr(placement.alignment, "align", lambda *a, answer=answer, **k: types.SimpleNamespace(
+            transform=answer, fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=False))
+        poses = np.full((2, 4, 4), np.nan)
+        poses[0] = np.eye(4)
+        poses, edges, pending, doubtful = placement.place_remaining(
+            prepared.scans, poses, None, None, prepared.voxel, sizes.DISTANCE_VOXELS * prepared.voxel,
+            lambda fitness, residual, balanced: True, 0, lambda *_: None, visible=visible)
+        assert pending == [] and np.isfinite(poses[1]).all() and doubtful == named
+
+
 def test_a_planted_flip_stays_out_of_the_graph():
     """Step 2 with ``edge_doubt="reject"``: an answer 90° off the truth is kept out at ``p_wrong >=
     reject_threshold`` even where the good rule would let it through (here every answer is good); the right answer

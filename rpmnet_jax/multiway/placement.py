@@ -19,11 +19,14 @@ def merged(scans, poses, placed, voxel: float) -> tuple:
     return points, normals_lib.estimate_normals(points)
 
 
-def place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, tick):
+def place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, tick, visible=None):
     """Registers each unplaced scan (NaN in ``poses (S, 4, 4)``) onto the merged placed ones, in index order,
     merging again after each success (``tick(placed, scans)`` then); ``accept(fitness, median plane residual,
-    balanced fitness)`` decides. Returns (poses, the placed scans' edges to every scan placed before them, scans
-    still pending, placed scans whose ``align`` answer was ``likely_wrong``)."""
+    balanced fitness)`` decides; with ``visible(edge) -> bool`` (the pair edges' free-space check) a placed scan
+    whose edge to a scan placed before it fails it is named: a scan registered onto the merged scans can land on a
+    street elsewhere that looks alike, inside what another station saw through. Returns (poses, the placed scans'
+    edges to every scan placed before them, scans still pending, placed scans whose ``align`` answer was
+    ``likely_wrong`` or failed ``visible``)."""
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
     pending = [s for s in range(len(scans)) if s not in placed]
     edges, doubtful = [], []
@@ -38,10 +41,13 @@ def place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, ti
                                           a.correspondences).residuals
             if accept(a.fitness, np.median(np.abs(residuals)) if len(residuals) else np.inf,
                       scoring.balanced_fitness(scans[s].normals, a.correspondences[:, 0])):
+                found = [edges_lib.measure(scans, s, o, np.linalg.inv(poses[o]) @ a.transform, max_dist, "global")
+                         for o in placed]
+                seen_through = visible is not None and not all(visible(e) for e in found)
                 poses[s] = a.transform
-                doubtful += [s] if a.likely_wrong else []  # reported; the robust graph still decides on the edges
-                edges += [edges_lib.measure(scans, s, o, np.linalg.inv(poses[o]) @ poses[s], max_dist, "global")
-                          for o in placed]
+                # reported; the robust graph still decides on the edges
+                doubtful += [s] if a.likely_wrong or seen_through else []
+                edges += found
                 placed.append(s)
                 pending.remove(s)
                 tick(len(placed), len(scans))

@@ -256,18 +256,21 @@ def _pose_graph(run: _Run) -> None:
 
 def _place_others(run: _Run) -> None:
     """Step 4: each scan still unplaced registered onto the merged placed scans; placed at ``min_fitness`` and the
-    balance bar with coinciding surfaces; its edges to each placed scan kept at ``min_overlap`` (one scan may
-    overlap a few)."""
+    balance bar with coinciding surfaces, named ``likely_wrong`` when it lies in the free space of a placed scan it
+    overlaps by ``min_overlap`` (scans with known sensors, the pair edges' check); its edges to each placed scan kept
+    at ``min_overlap`` (one scan may overlap a few)."""
     o = run.options
     if not any(not np.isfinite(run.poses[s, 0, 0]) for s in range(len(run.scans))):
         return
+    check = edge_graph.free_space_check(run.scans, run.prepared.sensors, run.prepared.voxel)
     with run.clock.stage("global"):
         run.params = run.params if run.params is not None else loading.load_params(None)
         run.poses, found, run.pending, doubtful = placement.place_remaining(
             run.scans, run.poses, run.params, run.cfg, run.prepared.voxel, run.max_dist, seed=o.seed,
             tick=run.tick("placing the other scans"),
             accept=lambda fitness, residual, balanced: (fitness >= o.min_fitness and balanced >= run.balance_bar
-                                                        and residual <= run.plane_bar * run.max_dist))
+                                                        and residual <= run.plane_bar * run.max_dist),
+            visible=lambda e: e.fitness < o.min_overlap or check(e))
         run.counts["global"] = len(found)
         run.global_edges = [e for e in found if run.good(e, o.min_overlap)]
         run.edges += run.global_edges
