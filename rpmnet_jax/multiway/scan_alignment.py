@@ -52,6 +52,7 @@ overconfident, and the floor is what the χ² bound that rejects edges is measur
 from __future__ import annotations
 
 import dataclasses
+import functools
 import warnings
 from typing import NamedTuple
 
@@ -147,6 +148,13 @@ class _Run:
     def scans(self) -> list:
         return self.prepared.scans
 
+    @functools.cached_property
+    def visible(self):
+        """``visible(edge) -> bool``: the free-space check of an edge between scans with known sensors
+        (:func:`~rpmnet_jax.multiway.edge_graph.free_space_check`), its range images made once a run for the pair
+        edges and the placement alike."""
+        return edge_graph.free_space_check(self.scans, self.prepared.sensors, self.prepared.voxel)
+
     def noise(self, scale: float = 1.0) -> tuple:
         """The edge noise floor (rotation, translation sigmas), × ``scale``."""
         o = self.options
@@ -213,13 +221,12 @@ def _pair_edges(run: _Run) -> None:
     with clock.stage("candidates"):
         pairs, scores = preparation.pairs_to_register(run.scans, o.all_pairs_up_to, o.neighbours, o.seed)
     weak = pairs
-    visible = edge_graph.free_space_check(run.scans, run.prepared.sensors, run.prepared.voxel)
     if o.classical:
         with clock.stage("classical"):
 
             def classical(todo, stage):
                 return dict(zip(todo, edge_graph.screened(engine.classical_edges(todo, run.tick(stage)), run.max_dist,
-                                                          run.pair_edge, o.edge_doubt == "reject", visible)))
+                                                          run.pair_edge, o.edge_doubt == "reject", run.visible)))
 
             found = classical(pairs, "classical edges")
             for r in range(BRIDGING_ROUNDS if scores is not None else 0):  # the groups left apart: next partners
@@ -237,7 +244,7 @@ def _pair_edges(run: _Run) -> None:
     if weak:
         with clock.stage("network"):
             run.edges += [e for e in engine.network_edges(weak, run.tick("network edges"))
-                          if run.pair_edge(e) and visible(e)]  # the classical edges' free-space check too
+                          if run.pair_edge(e) and run.visible(e)]  # the classical edges' free-space check too
             run.counts["network"] = len(weak)
 
 
@@ -262,7 +269,6 @@ def _place_others(run: _Run) -> None:
     o = run.options
     if not any(not np.isfinite(run.poses[s, 0, 0]) for s in range(len(run.scans))):
         return
-    check = edge_graph.free_space_check(run.scans, run.prepared.sensors, run.prepared.voxel)
     with run.clock.stage("global"):
         run.params = run.params if run.params is not None else loading.load_params(None)
         run.poses, found, run.pending, doubtful = placement.place_remaining(
@@ -270,7 +276,7 @@ def _place_others(run: _Run) -> None:
             tick=run.tick("placing the other scans"),
             accept=lambda fitness, residual, balanced: (fitness >= o.min_fitness and balanced >= run.balance_bar
                                                         and residual <= run.plane_bar * run.max_dist),
-            visible=lambda e: e.fitness < o.min_overlap or check(e))
+            visible=lambda e: e.fitness < o.min_overlap or run.visible(e))
         run.counts["global"] = len(found)
         run.global_edges = [e for e in found if run.good(e, o.min_overlap)]
         run.edges += run.global_edges
