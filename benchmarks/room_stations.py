@@ -104,6 +104,9 @@ def main(argv=None) -> None:
     if a.worker:
         from rpmnet_jax.simulation import rooms
         return print(json.dumps(run(a.worker, a.seed, a.step or rooms.STEP_DEG)), flush=True)
+    unknown = [m for m in a.methods.split(",") if m not in PAIR_METHODS + SCAN_METHODS]
+    if unknown:
+        p.error(f"unknown methods {unknown}; choose among {','.join(PAIR_METHODS + SCAN_METHODS)}")
     for method in a.methods.split(","):  # each method in a process of its own: its own imports, its own peak
         step = [] if a.step is None else ["--step", str(a.step)]
         subprocess.run([sys.executable, os.path.abspath(__file__), "--worker", method, "--seed", str(a.seed)] + step,

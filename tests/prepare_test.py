@@ -77,3 +77,25 @@ def test_a_cloud_above_max_points_is_registered_on_a_subset_of_its_rows(monkeypa
     assert a.aligned.shape == pts.shape and np.isnan(a.aligned[7]).all()
     np.testing.assert_allclose(a.transform, np.eye(4), atol=1e-4)  # two subsets of one cloud: the identity
     assert set(a.correspondences[:, 0]) <= set(prepare.prepare_pair(pts, pts, nrm, nrm, num_points=256).src_rows)
+
+
+def _dense(src, ref, refine_points=2000):
+    pair = prepare.prepare_pair(src, ref, num_points=256)
+    return pair, prepare.dense_clouds(pair, refine_points, 0, prepare.RowNormals(pair.ref, None))
+
+
+def test_a_sensor_s_sweep_is_refined_on_samples_spread_over_space():
+    rng = np.random.default_rng(0)
+    r, a = rng.uniform(2.0, 50.0, 30_000), rng.uniform(0, 2 * np.pi, 30_000)  # density falling with the range
+    sweep = np.stack([r * np.cos(a), r * np.sin(a), rng.normal(0, 0.01, 30_000)], axis=1)
+    pair, dense = _dense(sweep, sweep)
+    far = np.linalg.norm((dense.src * pair.scale + pair.c_src)[:, :2], axis=1) > 25.0
+    assert far.mean() > 0.65  # a random subset: about half beyond 25 m, where 75% of the ground's area lies
+
+
+def test_an_object_s_even_scan_keeps_its_random_samples():
+    pts, _ = _shape(n=8000)
+    pair, dense = _dense(pts, pts)
+    rows = np.flatnonzero(pair.src_core)
+    want = rows[np.sort(np.random.default_rng(1).choice(len(rows), 2000, replace=False))]
+    np.testing.assert_allclose(dense.src, pair.to_unit(pair.src[want], "src"))

@@ -61,3 +61,41 @@ def test_farthest_point_indices_equal_a_brute_force_oracle():
         d = np.linalg.norm(pts[:, None] - pts[chosen][None], axis=-1).min(axis=1)
         chosen.append(int(np.argmax(d)))
     np.testing.assert_array_equal(got, np.sort(chosen))
+
+
+def _sweep(n: int, seed: int = 0) -> np.ndarray:
+    """A LiDAR-like ground: points at angles and ranges 2-50 m, the density falling with the range (uniform in
+    range, so a square metre far away holds far fewer points than one near the sensor)."""
+    rng = np.random.default_rng(seed)
+    r, a = rng.uniform(2.0, 50.0, n), rng.uniform(0, 2 * np.pi, n)
+    return np.stack([r * np.cos(a), r * np.sin(a), rng.normal(0, 0.01, n)], axis=1)
+
+
+def test_even_indices_weigh_surfaces_by_area_not_by_density():
+    points = _sweep(40_000)
+    far_area_share = (50.0 ** 2 - 25.0 ** 2) / (50.0 ** 2 - 2.0 ** 2)  # beyond 25 m: 75% of the ground's area
+    far = np.linalg.norm(points[:, :2], axis=1) > 25.0
+    random_rows = sampling.sample_indices(np.random.default_rng(0), len(points), 2000)
+    even = sampling.even_indices(np.random.default_rng(0), points, 2000)
+    assert even.shape == (2000,) and np.all(np.diff(even) > 0)  # sorted distinct rows, exactly n
+    assert far[random_rows].mean() < 0.55  # a random subset keeps the density: about half of the points
+    assert abs(far[even].mean() - far_area_share) < 0.06
+    np.testing.assert_array_equal(even, sampling.even_indices(np.random.default_rng(0), points, 2000))  # seeded
+    np.testing.assert_array_equal(sampling.even_indices(np.random.default_rng(0), points[:50], 2000), np.arange(50))
+
+
+def test_even_indices_fall_back_to_a_random_subset_on_duplicated_points():
+    points = np.repeat(np.eye(3), 100, axis=0)  # 3 distinct points: no grid has 50 occupied cubes
+    idx = sampling.even_indices(np.random.default_rng(0), points, 50)
+    np.testing.assert_array_equal(idx, sampling.sample_indices(np.random.default_rng(0), len(points), 50))
+
+
+def test_spacing_spread_tells_a_sensor_s_falling_density_from_an_even_surface():
+    g = np.stack(np.meshgrid(np.arange(100.0), np.arange(100.0)), -1).reshape(-1, 2)
+    jitter = np.random.default_rng(0).uniform(-0.2, 0.2, g.shape)
+    even_surface = np.column_stack([g + jitter, np.zeros(len(g))])
+    assert sampling.spacing_spread(even_surface) < 2.0
+    poisson = np.random.default_rng(1).uniform(0, 100, (10_000, 3)) * [1, 1, 0]  # random, evenly dense samples
+    assert sampling.spacing_spread(poisson) < 2.0
+    assert sampling.spacing_spread(_sweep(30_000)) > 2.5
+    assert sampling.spacing_spread(np.zeros((10, 3))) == 1.0  # no distinct points: no spread
