@@ -87,7 +87,7 @@ def numbers(root: str = ROOT) -> dict:
     """The named numbers: ``{name: {"value", "source", "claims", ["commit"]}}``; ``value`` a float, a string
     (``"0.02–0.03"``, ``"14 / 15"``) or a number as the source states it."""
     infer = "python benchmarks/compare_torch.py --malloc default --points 512 1024 2048 (2026-12-02), " + COMPARE_TORCH
-    real = "python benchmarks/real_scans/run.py (bb83a76; its pairs again at eca2092), " + REAL_SCANS
+    real = "python benchmarks/real_scans/run.py (bb83a76; its pairs again at 8f26daf), " + REAL_SCANS
     pair = _example_pair(root)
     return {
         # the network alone against the official code
