@@ -126,8 +126,9 @@ def test_a_placement_flagged_likely_wrong_is_reported(monkeypatch):
     flags = iter([True, False])
     monkeypatch.setattr(placement.alignment, "align", lambda *a, **k: types.SimpleNamespace(
         transform=np.eye(4), fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=next(flags)))
+    singles = [placement.Group((s,), np.eye(4)[None]) for s in range(1, len(scans))]
     poses, edges, pending, doubtful = placement.place_remaining(
-        scans, poses, None, None, voxel, sizes.DISTANCE_VOXELS * voxel, lambda fitness, residual, balanced: True, 0,
+        scans, poses, singles, None, None, voxel, sizes.DISTANCE_VOXELS * voxel, lambda fitness, residual, balanced: True, 0,
         lambda *_: None)
     assert pending == [] and doubtful == [1] and np.isfinite(poses).all()
 
@@ -150,9 +151,51 @@ def test_a_placement_in_another_scan_s_free_space_is_named(monkeypatch):
         poses = np.full((2, 4, 4), np.nan)
         poses[0] = np.eye(4)
         poses, edges, pending, doubtful = placement.place_remaining(
-            prepared.scans, poses, None, None, prepared.voxel, sizes.DISTANCE_VOXELS * prepared.voxel,
+            prepared.scans, poses, [placement.Group((1,), np.eye(4)[None])], None, None, prepared.voxel, sizes.DISTANCE_VOXELS * prepared.voxel,
             lambda fitness, residual, balanced: True, 0, lambda *_: None, visible=visible)
         assert pending == [] and np.isfinite(poses[1]).all() and doubtful == named
+
+
+def test_a_group_moves_as_one_and_is_not_placed_in_free_space(monkeypatch):
+    """Step 4 places a group of scans as one: stations 1 and 2 of a room, joined by their edge, placed onto station
+    0. The first member registered a half turn off would put the group where station 0 saw through: refused, and
+    the next member's right answer places both, each at its true pose; the group's own edge joins the edges."""
+    import types
+    from rpmnet_jax.simulation import rooms
+
+    stations = rooms.stations(0)[:3]
+    prepared = preparation.prepare_scans([st.points for st in stations], None, None, viewpoints="origin")
+    visible = edge_graph.free_space_check(prepared.scans, prepared.sensors, prepared.voxel)
+    truth = [np.linalg.inv(stations[0].pose) @ st.pose for st in stations]
+    turn = np.eye(4)
+    turn[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)
+    joined = edges_lib.measure(prepared.scans, 2, 1, np.linalg.inv(truth[1]) @ truth[2], 0.1, "classical")
+    group = placement.Group((1, 2), np.stack([np.eye(4), np.linalg.inv(truth[1]) @ truth[2]]), (joined,))
+    answers = iter([truth[1] @ turn, truth[2]])  # member 1 a half turn off, then member 2 right
+    monkeypatch.setattr(placement.alignment, "align", lambda *a, **k: types.SimpleNamespace(
+        transform=next(answers), fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=False))
+    poses = np.full((3, 4, 4), np.nan)
+    poses[0] = np.eye(4)
+    poses, edges, pending, doubtful = placement.place_remaining(
+        prepared.scans, poses, [group], None, None, prepared.voxel, sizes.DISTANCE_VOXELS * prepared.voxel,
+        lambda fitness, residual, balanced: True, 0, lambda *_: None, visible=visible)
+    assert pending == [] and doubtful == [] and joined in edges
+    for s in (1, 2):
+        np.testing.assert_allclose(poses[s], truth[s], atol=1e-9)
+
+
+def test_unplaced_scans_joined_by_edges_form_a_group_with_their_relative_poses():
+    """The scans the pose graph left out come back as groups: those joined by pair edges with their own graph's
+    relative poses (largest first), then single scans."""
+    scans, truth = cropped_pair(0, 1600)
+    e = edges_lib.measure(scans, 0, 1, truth, 0.05, "classical")
+    poses = np.full((4, 4, 4), np.nan)
+    poses[2] = np.eye(4)
+    moved = [e._replace(source=1, target=3)]  # scans 1 and 3 joined; 0 alone; 2 placed
+    groups = placement.unplaced_groups(4, moved, poses, (0.01, 0.01), 0, weigh=True)
+    assert [g.members for g in groups] == [(1, 3), (0,)]
+    np.testing.assert_allclose(np.linalg.inv(groups[0].poses[1]) @ groups[0].poses[0], truth, atol=1e-9)
+    assert groups[0].edges == tuple(moved)
 
 
 def test_a_planted_flip_stays_out_of_the_graph():

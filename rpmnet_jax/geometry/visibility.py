@@ -4,7 +4,10 @@ flipped answer puts furniture, columns and door frames there.
 
 A scan taken from a known sensor is kept as a range image: per direction bin (``BIN_DEG`` of azimuth and
 elevation about the sensor) the nearest range it hit. A moved point violates the free space when it falls in a
-bin the scan saw and lies nearer the sensor than that bin's range by more than a margin.
+bin the scan saw and lies nearer the sensor than the nearest range of that bin and its eight neighbours by more
+than a margin: a bin at an object's silhouette holds rays that passed beside the object, and another scan's points
+on that object fall in it (on a simulated town of 100 stations at the true poses, the bin's own range put 399 of
+1,258 overlapping pairs above ``MAX_FREE_SPACE_SHARE``, its median pair at 0.034).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ def margin(cell: float) -> float:
 class RangeImage(NamedTuple):
     sensor: np.ndarray  # (3,) in the scan's (shifted) frame
     ranges: np.ndarray  # (A·E,) nearest range per direction bin, inf where nothing was hit
+    free: np.ndarray  # (A·E,) the nearest range of each bin and its 8 neighbours: free space is nearer than this
 
 
 def _bins(points: np.ndarray, sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -49,17 +53,23 @@ def range_image(points: np.ndarray, sensor: np.ndarray) -> RangeImage:
     """The :class:`RangeImage` of a scan ``points (N, 3)`` taken from ``sensor (3,)``."""
     sensor = np.asarray(sensor, np.float64)
     bins, r = _bins(points, sensor)
-    ranges = np.full(int(round(360.0 / BIN_DEG)) * int(round(180.0 / BIN_DEG)), np.inf)
+    na, ne = int(round(360.0 / BIN_DEG)), int(round(180.0 / BIN_DEG))
+    ranges = np.full(na * ne, np.inf)
     np.minimum.at(ranges, bins, r)
-    return RangeImage(sensor, ranges)
+    grid = ranges.reshape(na, ne)
+    padded = np.pad(grid, ((0, 0), (1, 1)), constant_values=np.inf)  # elevation ends; azimuth wraps round
+    free = np.min([np.roll(padded, da, axis=0)[:, 1 + de:1 + de + ne] for da in (-1, 0, 1) for de in (-1, 0, 1)],
+                  axis=0)
+    return RangeImage(sensor, ranges, free.ravel())
 
 
 def free_space_share(moved: np.ndarray, image: RangeImage, margin: float) -> float:
     """The share of ``moved (N, 3)`` points (in the image's frame) that fall in bins the scan saw and lie nearer
-    its sensor than the bin's range by more than ``margin``."""
+    its sensor than the nearest range of the bin and its neighbours (``RangeImage.free``) by more than
+    ``margin``."""
     bins, r = _bins(moved, image.sensor)
     seen = np.isfinite(image.ranges[bins])
-    inside = seen & (r < image.ranges[bins] - margin)
+    inside = seen & (r < image.free[bins] - margin)
     return float(inside.sum()) / max(int(seen.sum()), 1)
 
 

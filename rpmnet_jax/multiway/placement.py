@@ -1,15 +1,57 @@
-"""Step 4 of :func:`rpmnet_jax.align_scans`: the scans the pose graph left unplaced, each registered onto the merged
-placed scans by :func:`rpmnet_jax.align` with ``init="global"`` (rotation hypotheses covering every orientation)."""
+"""Step 4 of :func:`rpmnet_jax.align_scans`: the scans the pose graph left unplaced, registered onto the merged
+placed scans by :func:`rpmnet_jax.align` with ``init="global"`` (rotation hypotheses covering every orientation).
+
+They come in groups (:class:`Group`): the scans that the pair edges join among themselves, with their poses
+relative to one another from their own robust pose graph, and single scans. A group moves as one: a member
+registered onto the merged scans places the whole group, and a group of several scans is placed only where none
+of its members lies in the free space of a placed scan it overlaps (on a site the streets look alike; a group
+spans more of one than a single scan does, so a look-alike street rarely takes all of it)."""
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
 from rpmnet_jax.geometry import normals as normals_lib, sampling
 from rpmnet_jax.classical import scoring
+from rpmnet_jax.multiway import edge_graph
 from rpmnet_jax.pair_edges import edges as edges_lib
 from rpmnet_jax.ops import se3
 from rpmnet_jax.pairwise import alignment
+from rpmnet_jax.pose_graphs import pose_graph
+
+
+class Group(NamedTuple):
+    """Unplaced scans that move as one."""
+
+    members: tuple  # scan indices, in the order their placement is tried
+    poses: np.ndarray  # (k, 4, 4): each member → the group's frame
+    edges: tuple = ()  # the pair edges that join them (kept by their pose graph)
+
+
+def unplaced_groups(num_scans: int, pair_edges, poses: np.ndarray, noise: tuple, seed: int, weigh: bool) -> list:
+    """The scans NaN in ``poses (S, 4, 4)`` as :class:`Group` s: each connected part of the ``pair_edges`` among
+    them with its own robust pose graph (:func:`~rpmnet_jax.multiway.edge_graph.solve` anchored at its first scan,
+    ``noise`` as there, the edges ranked by their doubt weights when ``weigh``), its members those that graph
+    placed; then every scan left, a group of one. Largest first, ties by their first scan."""
+    unplaced = ~np.isfinite(poses[:, 0, 0])
+    among = [e for e in pair_edges if unplaced[e.source] and unplaced[e.target]]
+    labels = pose_graph.components(num_scans, [(e.source, e.target) for e in among])
+    groups, grouped = [], np.zeros(num_scans, bool)
+    for label in np.unique(labels[unplaced]):
+        members = np.flatnonzero((labels == label) & unplaced)
+        if len(members) < 2:
+            continue
+        part = [e for e in among if labels[e.source] == label]
+        at, kept, _ = edge_graph.solve(num_scans, part, int(members[0]), noise, seed,
+                                       edge_graph.doubt_weights(part) if weigh else None)
+        placed = [int(m) for m in members if np.isfinite(at[m, 0, 0])]
+        if len(placed) > 1:
+            groups.append(Group(tuple(placed), at[placed], tuple(kept)))
+            grouped[placed] = True
+    groups.sort(key=lambda g: (-len(g.members), g.members[0]))
+    return groups + [Group((int(s),), np.eye(4)[None]) for s in np.flatnonzero(unplaced & ~grouped)]
 
 
 def merged(scans, poses, placed, voxel: float) -> tuple:
@@ -19,38 +61,58 @@ def merged(scans, poses, placed, voxel: float) -> tuple:
     return points, normals_lib.estimate_normals(points)
 
 
-def place_remaining(scans, poses, params, cfg, voxel, max_dist, accept, seed, tick, visible=None):
-    """Registers each unplaced scan (NaN in ``poses (S, 4, 4)``) onto the merged placed ones, in index order,
-    merging again after each success (``tick(placed, scans)`` then); ``accept(fitness, median plane residual,
-    balanced fitness)`` decides; with ``visible(edge) -> bool`` (the pair edges' free-space check) a placed scan
-    whose edge to a scan placed before it fails it is named: a scan registered onto the merged scans can land on a
-    street elsewhere that looks alike, inside what another station saw through. Returns (poses, the placed scans'
-    edges to every scan placed before them, scans still pending, placed scans whose ``align`` answer was
-    ``likely_wrong`` or failed ``visible``)."""
+def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, seed, tick, visible=None):
+    """Places the ``groups`` (:class:`Group` s of the scans NaN in ``poses (S, 4, 4)``), in order: each member in
+    turn registered onto the merged placed scans until one's answer passes ``accept(fitness, median plane
+    residual, balanced fitness)`` and, for a group of several scans, ``visible(edge) -> bool`` (the pair edges'
+    free-space check) on every member's edge to every placed scan; the group then placed, the scans merged again
+    (``tick(placed, scans)``) and the groups left tried again from the first. A single scan whose edge to a placed
+    scan fails ``visible`` is placed and named (a scan registered onto the merged scans can land on a street
+    elsewhere that looks alike). Returns (poses, the placed scans' edges to every scan placed before them and their
+    groups' edges, scans still pending, placed scans whose ``align`` answer was ``likely_wrong`` or failed
+    ``visible``)."""
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
-    pending = [s for s in range(len(scans)) if s not in placed]
+    pending = list(groups)
     edges, doubtful = [], []
     grew = True
     while pending and grew:
         grew = False
         model, model_normals = merged(scans, poses, placed, voxel)
-        for s in pending:
-            a = alignment.align(scans[s].points, model, scans[s].normals, model_normals, params=params, cfg=cfg,
-                                init="global", max_correspondence_distance=max_dist, seed=seed)
-            residuals = scoring.plane_fit(scans[s].points, model, model_normals, a.transform,
-                                          a.correspondences).residuals
-            if accept(a.fitness, np.median(np.abs(residuals)) if len(residuals) else np.inf,
+        for group in pending:
+            answer = _place_group(scans, poses, placed, group, model, model_normals, params, cfg, max_dist, accept,
+                                  seed, visible)
+            if answer is None:
+                continue
+            found, seen_through, likely_wrong = answer
+            doubtful += list(group.members) if likely_wrong or seen_through else []
+            edges += found + list(group.edges)
+            placed += list(group.members)
+            pending.remove(group)
+            tick(len(placed), len(scans))
+            grew = True
+            break  # the model grew: merge again before the next group
+    return poses, edges, [s for g in pending for s in g.members], doubtful
+
+
+def _place_group(scans, poses, placed, group, model, model_normals, params, cfg, max_dist, accept, seed, visible):
+    """The first member of ``group`` whose registration onto ``model`` places the group (see
+    :func:`place_remaining`): ``poses`` of its members set, ``(edges to the placed scans, whether one failed
+    visible, align's likely_wrong)``; None when none does (``poses`` untouched)."""
+    for k, s in enumerate(group.members):
+        a = alignment.align(scans[s].points, model, scans[s].normals, model_normals, params=params, cfg=cfg,
+                            init="global", max_correspondence_distance=max_dist, seed=seed)
+        residuals = scoring.plane_fit(scans[s].points, model, model_normals, a.transform, a.correspondences).residuals
+        if not accept(a.fitness, np.median(np.abs(residuals)) if len(residuals) else np.inf,
                       scoring.balanced_fitness(scans[s].normals, a.correspondences[:, 0])):
-                found = [edges_lib.measure(scans, s, o, np.linalg.inv(poses[o]) @ a.transform, max_dist, "global")
-                         for o in placed]
-                seen_through = visible is not None and not all(visible(e) for e in found)
-                poses[s] = a.transform
-                # reported; the robust graph still decides on the edges
-                doubtful += [s] if a.likely_wrong or seen_through else []
-                edges += found
-                placed.append(s)
-                pending.remove(s)
-                tick(len(placed), len(scans))
-                grew = True
-                break  # the model grew: merge again before the next scan
-    return poses, edges, pending, doubtful
+            continue
+        frame = a.transform @ np.linalg.inv(group.poses[k])  # the group's frame → the placed scans' frame
+        at = {m: frame @ p for m, p in zip(group.members, group.poses)}
+        found = [edges_lib.measure(scans, m, o, np.linalg.inv(poses[o]) @ at[m], max_dist, "global")
+                 for m in group.members for o in placed]
+        seen_through = visible is not None and not all(visible(e) for e in found)
+        if seen_through and len(group.members) > 1:
+            continue  # a group lies where its scans could not have been: another member may place it right
+        for m in group.members:
+            poses[m] = at[m]
+        return found, seen_through, a.likely_wrong
+    return None

@@ -137,6 +137,7 @@ class _Run:
     cfg: config_lib.RPMNetConfig
     poses: np.ndarray = None  # (S, 4, 4), NaN while a scan is unplaced
     edges: list = dataclasses.field(default_factory=list)  # the edges of the current graph
+    pair_edges: list = dataclasses.field(default_factory=list)  # every pair edge, before the pose graph chose
     rejected: list = dataclasses.field(default_factory=list)  # rejected by the pair edges' robust graph
     refine_rejected: list = dataclasses.field(default_factory=list)  # rejected by the final graph or measure
     global_edges: list = dataclasses.field(default_factory=list)  # placement's edges kept
@@ -254,6 +255,7 @@ def _pose_graph(run: _Run) -> None:
         return
     with run.clock.stage("graph"):
         num_scans = len(run.scans)
+        run.pair_edges = list(run.edges)
         anchor = edge_graph.largest_component(num_scans, run.edges)
         weights = None if run.options.edge_doubt == "off" else edge_graph.doubt_weights(run.edges)
         run.poses, run.edges, run.rejected = edge_graph.solve(num_scans, run.edges, anchor,
@@ -262,23 +264,27 @@ def _pose_graph(run: _Run) -> None:
 
 
 def _place_others(run: _Run) -> None:
-    """Step 4: each scan still unplaced registered onto the merged placed scans; placed at ``min_fitness`` and the
-    balance bar with coinciding surfaces, named ``likely_wrong`` when it lies in the free space of a placed scan it
-    overlaps by ``min_overlap`` (scans with known sensors, the pair edges' check); its edges to each placed scan kept
-    at ``min_overlap`` (one scan may overlap a few)."""
+    """Step 4: the scans still unplaced, in groups (those the pair edges join among themselves, largest first, then
+    single scans: :func:`~rpmnet_jax.multiway.placement.unplaced_groups`), each registered onto the merged placed
+    scans; placed at ``min_fitness`` and the balance bar with coinciding surfaces and, for a group of several, with
+    no member in the free space of a placed scan it overlaps by ``min_overlap``; a single scan that lies there is
+    placed and named ``likely_wrong`` (scans with known sensors, the pair edges' check); edges to each placed scan
+    kept at ``min_overlap`` (one scan may overlap a few)."""
     o = run.options
     if not any(not np.isfinite(run.poses[s, 0, 0]) for s in range(len(run.scans))):
         return
     with run.clock.stage("global"):
         run.params = run.params if run.params is not None else loading.load_params(None)
+        groups = placement.unplaced_groups(len(run.scans), run.pair_edges, run.poses, run.noise(NETWORK_NOISE_SCALE),
+                                           o.seed, o.edge_doubt != "off")
         run.poses, found, run.pending, doubtful = placement.place_remaining(
-            run.scans, run.poses, run.params, run.cfg, run.prepared.voxel, run.max_dist, seed=o.seed,
+            run.scans, run.poses, groups, run.params, run.cfg, run.prepared.voxel, run.max_dist, seed=o.seed,
             tick=run.tick("placing the other scans"),
             accept=lambda fitness, residual, balanced: (fitness >= o.min_fitness and balanced >= run.balance_bar
                                                         and residual <= run.plane_bar * run.max_dist),
             visible=lambda e: e.fitness < o.min_overlap or run.visible(e))
-        run.counts["global"] = len(found)
-        run.global_edges = [e for e in found if run.good(e, o.min_overlap)]
+        run.counts["global"] = sum(e.stage == "global" for e in found)
+        run.global_edges = [e for e in found if e.stage != "global" or run.good(e, o.min_overlap)]
         run.edges += run.global_edges
         run.likely_wrong.update(doubtful)
 
