@@ -32,11 +32,14 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    edges (a flipped pair) are rejected. The largest component of the kept edges is placed; its scans whose every
    path to the anchor crosses a kept classical edge with ``p_wrong`` ≥ the model's ``threshold`` (0.5: more likely
    wrong than right) are reported in ``likely_wrong``;
-4. global (:mod:`rpmnet_jax.multiway.placement`): each scan outside it is registered onto the merged, placed scans by :func:`rpmnet_jax.align` with
-   ``init="global"`` (rotation hypotheses covering every orientation, one batched call); placed when its
-   fitness is at least ``min_fitness``, else left out with a warning (it overlaps nothing); a placement
-   ``align`` flags ``likely_wrong`` (:mod:`rpmnet_jax.pairwise.doubt`) is reported in ``likely_wrong`` (the
-   robust graph, not the flag, decides which edges stay);
+4. global (:mod:`rpmnet_jax.multiway.placement`): the scans outside it, in groups (those the pair edges join among
+   themselves, with their own robust pose graph's relative poses, largest first; then single scans), each
+   registered onto the merged, placed scans by :func:`rpmnet_jax.align` with ``init="global"`` (rotation
+   hypotheses covering every orientation, one batched call), a group's members in turn until one places it;
+   placed when its fitness is at least ``min_fitness``, else left out with a warning (it overlaps nothing); with
+   known sensors a group of several is not placed where a member lies in a placed scan's free space, and a single
+   scan placed there is reported in ``likely_wrong``, as is a placement ``align`` flags ``likely_wrong``
+   (:mod:`rpmnet_jax.pairwise.doubt`; the robust graph, not the flag, decides which edges stay);
 5. refine (:mod:`rpmnet_jax.multiway.refinement`): every placed pair predicted to overlap by ``min_overlap`` at the current poses takes part:
    ``refine="joint"`` (default) moves all poses together on their points (multi-view point-to-plane,
    :mod:`rpmnet_jax.pose_graphs.joint_refine`), then measures each pair as an edge; ``refine="icp"`` gives each
