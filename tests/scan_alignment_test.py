@@ -198,6 +198,21 @@ def test_unplaced_scans_joined_by_edges_form_a_group_with_their_relative_poses()
     assert groups[0].edges == tuple(moved)
 
 
+def test_a_finer_refinement_voxel_makes_coarse_poses_precise():
+    """Registered at a coarse voxel (0.01 on a 0.2 shape), the poses are off by up to 0.11° (measured); refined on
+    the scans prepared again at ``refine_voxel_size`` 0.002, by 0.007° (measured), and the answer reports the
+    refinement's voxel and correspondence distance (2.5 voxels)."""
+    clouds, truth = synthetic_scans()
+    errors = {}
+    for fine in (None, 0.002):
+        r = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(voxel_size=0.01, refine_voxel_size=fine))
+        errors[fine] = max(rot for rot, _ in pose_errors.pose_errors(r.poses, truth, clouds))
+        assert r.voxel_size == (fine or 0.01) and r.max_correspondence_distance == pytest.approx(2.5 * r.voxel_size)
+    assert errors[None] > 0.05 and errors[0.002] < 0.02, errors
+    with pytest.raises(ValueError, match="refine_voxel_size"):
+        rpmnet_jax.ScanOptions(refine_voxel_size=0.0)
+
+
 def test_a_planted_flip_stays_out_of_the_graph():
     """Step 2 with ``edge_doubt="reject"``: an answer 90° off the truth is kept out at ``p_wrong >=
     reject_threshold`` even where the good rule would let it through (here every answer is good); the right answer

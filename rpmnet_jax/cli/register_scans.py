@@ -50,6 +50,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="registration voxel size in the scans' units (default: 2%% of the median scan radius for "
                         "objects, 1%% for scans seen from inside a scene: LiDAR sweeps, scanner stations); every "
                         "other size is a multiple of it")
+    p.add_argument("--refine-voxel-size", type=float, default=None,
+                   help="refine on the scans prepared again at this voxel (scans' units; default the registration "
+                        "voxel): a finer one makes a scene's poses more precise")
     p.add_argument("--max-correspondence-distance", type=float, default=None,
                    help="inlier threshold in the scans' units (default: 2.5 voxels)")
     p.add_argument("--viewpoints", choices=("auto", "origin", "none"), default="auto",
@@ -219,7 +222,8 @@ def _align(args, scans: _Scans, scheduler, cache) -> tuple:
     from rpmnet_jax.multiway import options as options_lib, scan_alignment
 
     options = options_lib.ScanOptions(voxel_size=args.voxel_size, refine=args.refine, seed=args.seed,
-                                      max_correspondence_distance=args.max_correspondence_distance)
+                                      max_correspondence_distance=args.max_correspondence_distance,
+                                      refine_voxel_size=args.refine_voxel_size)
     bars = runtime.ProgressBars(args.quiet)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

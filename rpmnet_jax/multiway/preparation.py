@@ -28,12 +28,13 @@ class Prepared(NamedTuple):
 
 
 def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="auto", engine=None,
-                  tick=None) -> Prepared:
+                  tick=None, features: bool = True) -> Prepared:
     """The scans ``clouds[i] (N_i, 3)`` (``normals``: ``None`` or one ``(N_i, 3)`` or ``None`` per scan) moved by
     ``-shift (3,)``, at ``voxel_size`` (``None``: :func:`~rpmnet_jax.multiway.sizes.voxel`'s default), their
     sensors from ``viewpoints`` (:func:`~rpmnet_jax.geometry.sensors.positions`); each scan made ready by
     :func:`prepare_scan`, by ``engine`` when given (:meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.prepare`:
-    a task a scan on a cluster), ``tick(done, total)`` as they finish."""
+    a task a scan on a cluster), ``tick(done, total)`` as they finish; ``features=False``: without FPFH (scans for
+    the refinement only)."""
     if len(clouds) < 2:
         raise ValueError(f"need at least two scans, got {len(clouds)}")
     normals = [None] * len(clouds) if normals is None else list(normals)
@@ -43,7 +44,7 @@ def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="au
     seen_from = [None if v is None else v - shift for v in sensors.positions([p for p, _ in cleaned], viewpoints)]
     cleaned = [(p - shift, n) for p, n in cleaned]
     voxel, scene = sizes.voxel([p for p, _ in cleaned], seen_from, voxel_size)
-    jobs = [(p, n, sensor, voxel, i) for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from))]
+    jobs = [(p, n, sensor, voxel, i, features) for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from))]
     scans = engine.prepare(prepare_scan, jobs, tick) if engine is not None else [prepare_scan(*job) for job in jobs]
     coarse = [(i, s) for i, s in enumerate(scans) if not isinstance(s, edges_lib.Scan)]
     if coarse:  # here, not in the task: one line naming the first such scan, wherever the tasks ran
@@ -53,10 +54,10 @@ def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="au
 
 
 @threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the compiled loops
-def prepare_scan(points, normals, sensor, voxel: float, index: int):
+def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bool = True):
     """Scan ``index`` (cleaned ``points (N, 3)``, ``normals (N, 3)`` or ``None``, its ``sensor (3,)`` or ``None``)
     voxel-downsampled at ``voxel``, with normals (averaged per voxel, else estimated: facing the sensor, else away
-    from the centroid) and the FPFH of its keypoints (drawn with seed ``index``): an
+    from the centroid) and, with ``features``, the FPFH of its keypoints (drawn with seed ``index``): an
     :class:`~rpmnet_jax.pair_edges.edges.Scan`, or the number of points left when fewer than
     ``MIN_VOXEL_POINTS``."""
     p, n = sampling.voxel_downsample(points, normals, voxel)
@@ -64,7 +65,7 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int):
         return len(p)
     if n is None:
         n = normals_lib.estimate_normals(p) if sensor is None else normals_lib.facing(p, sensor)
-    return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=index)
+    return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel if features else None, voxel, seed=index)
 
 
 def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int) -> tuple:

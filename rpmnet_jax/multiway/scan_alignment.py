@@ -88,8 +88,8 @@ class ScanAlignment(NamedTuple):
     edges: tuple  # Edge of the final pose graph (kept by the robust optimisation), each with its p_wrong
     rejected: tuple  # Edge the robust optimisation rejected: among the pair edges and the final ones
     left_out: tuple  # indices of scans that overlap none of the placed ones (poses NaN)
-    voxel_size: float  # caller's units
-    max_correspondence_distance: float  # caller's units
+    voxel_size: float  # caller's units (the refinement's, with ScanOptions.refine_voxel_size)
+    max_correspondence_distance: float  # caller's units (the same)
     timings: dict  # seconds per stage that ran: prepare, candidates, classical, network (each with its short ICP),
     # graph, global, refine; total
     likely_wrong: tuple = ()  # placed scans whose pose rests on a likely wrong pair edge (step 3) or whose placement
@@ -118,7 +118,7 @@ def align_scans(clouds, normals=None, *, viewpoints="auto",
         raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")
     with threads.compiled_loops(), pair_engine.PairEngine(scheduler, cache) as engine:
         run = _prepare(engine, clouds, normals, viewpoints, options, params, checkpoint, cfg, progress)
-        for stage in (_pair_edges, _pose_graph, _place_others, _refine):
+        for stage in (_pair_edges, _pose_graph, _place_others, _finer_scans, _refine):
             stage(run)
         return _answer(run)
 
@@ -138,6 +138,7 @@ class _Run:
     balance_bar: float  # an accepted pair edge's (and placement's) balanced fitness: 0 but in a scene with ground
     params: object  # the network's parameters (None: loaded when the network first runs)
     cfg: config_lib.RPMNetConfig
+    inputs: tuple = ()  # (clouds, normals, viewpoints) as the caller gave them: the refinement's finer scans
     poses: np.ndarray = None  # (S, 4, 4), NaN while a scan is unplaced
     edges: list = dataclasses.field(default_factory=list)  # the edges of the current graph
     pair_edges: list = dataclasses.field(default_factory=list)  # every pair edge, before the pose graph chose
@@ -207,7 +208,8 @@ def _prepare(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, pr
             sizes.RANSAC_VOXELS * prepared.voxel, plane_bar, all(v is None for v in prepared.sensors)))
     poses = np.full((len(prepared.scans), 4, 4), np.nan)
     poses[0] = np.eye(4)
-    return _Run(o, engine, clock, progress, shift, prepared, max_dist, plane_bar, balance_bar, params, cfg, poses)
+    return _Run(o, engine, clock, progress, shift, prepared, max_dist, plane_bar, balance_bar, params, cfg,
+                (clouds, normals, viewpoints), poses)
 
 
 def _grounded(prepared: preparation.Prepared) -> bool:
@@ -290,6 +292,23 @@ def _place_others(run: _Run) -> None:
         run.global_edges = [e for e in found if e.stage != "global" or run.good(e, o.min_overlap)]
         run.edges += run.global_edges
         run.likely_wrong.update(doubtful)
+
+
+def _finer_scans(run: _Run) -> None:
+    """Before step 5, with ``refine_voxel_size``: the scans prepared again at that voxel (no features), the
+    correspondence distance scaled with it, the engine bound to them; the refinement and the answer's edges use
+    them."""
+    o = run.options
+    if o.refine_voxel_size is None or len(run.placed()) < 2:
+        return
+    with run.clock.stage("refine"):
+        clouds, normals, viewpoints = run.inputs
+        fine = preparation.prepare_scans(clouds, normals, o.refine_voxel_size, run.shift, viewpoints, run.engine,
+                                         run.tick("preparing scans for the refinement"), features=False)
+        run.max_dist *= fine.voxel / run.prepared.voxel
+        run.prepared = fine
+        run.engine.bind(fine.scans, run.params, run.cfg, run.engine.settings._replace(
+            max_distance=run.max_dist, ransac_distance=sizes.RANSAC_VOXELS * fine.voxel))
 
 
 def _refine(run: _Run) -> None:
