@@ -295,11 +295,11 @@ def _place_others(run: _Run) -> None:
 
 
 def _finer_scans(run: _Run) -> None:
-    """Before step 5, with ``refine_voxel_size``: the scans prepared again at that voxel (no features), the
-    correspondence distance scaled with it, the engine bound to them; the refinement and the answer's edges use
-    them."""
+    """Before step 5, with ``refine_voxel_size`` and a refinement (not ``refine="none"``): the scans prepared again
+    at that voxel (no features), the correspondence distance scaled with it, the engine bound to them; the
+    refinement and the answer's edges use them."""
     o = run.options
-    if o.refine_voxel_size is None or len(run.placed()) < 2:
+    if o.refine_voxel_size is None or o.refine == "none" or len(run.placed()) < 2:
         return
     with run.clock.stage("refine"):
         clouds, normals, viewpoints = run.inputs
