@@ -30,6 +30,9 @@ MARGIN_CELLS = 5.0  # the margin, in cells of the voxel grid the check runs on (
 # correspondence distance). Not compared with other values
 
 
+AZIMUTH_BINS, ELEVATION_BINS = int(round(360.0 / BIN_DEG)), int(round(180.0 / BIN_DEG))  # a range image's shape
+
+
 def margin(cell: float) -> float:
     """The free-space margin of a check on a voxel grid of ``cell`` (caller's units)."""
     return MARGIN_CELLS * cell
@@ -47,7 +50,7 @@ def _bins(points: np.ndarray, sensor: np.ndarray) -> tuple[np.ndarray, np.ndarra
     r = np.linalg.norm(d, axis=1)
     az = np.degrees(np.arctan2(d[:, 1], d[:, 0])) + 180.0
     el = np.degrees(np.arcsin(np.clip(d[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))) + 90.0
-    na, ne = int(round(360.0 / BIN_DEG)), int(round(180.0 / BIN_DEG))
+    na, ne = AZIMUTH_BINS, ELEVATION_BINS
     return np.minimum((az / BIN_DEG).astype(np.int64), na - 1) * ne + np.minimum((el / BIN_DEG).astype(np.int64),
                                                                                   ne - 1), r
 
@@ -56,7 +59,7 @@ def range_image(points: np.ndarray, sensor: np.ndarray) -> RangeImage:
     """The :class:`RangeImage` of a scan ``points (N, 3)`` taken from ``sensor (3,)``."""
     sensor = np.asarray(sensor, np.float64)
     bins, r = _bins(points, sensor)
-    na, ne = int(round(360.0 / BIN_DEG)), int(round(180.0 / BIN_DEG))
+    na, ne = AZIMUTH_BINS, ELEVATION_BINS
     ranges = np.full(na * ne, np.inf)
     np.minimum.at(ranges, bins, r)
     grid = ranges.reshape(na, ne)

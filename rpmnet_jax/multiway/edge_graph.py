@@ -87,4 +87,3 @@ def largest_component(num_scans: int, edges) -> int:
     """The first scan of the largest connected component of ``edges``."""
     labels = pose_graph.components(num_scans, [(e.source, e.target) for e in edges])
     return int(np.argmax(labels == np.argmax(np.bincount(labels))))
-
