@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, sensors, threads
-from rpmnet_jax.multiway import candidate_pairs, sizes
+from rpmnet_jax.multiway import candidate_pairs, radon_scores, sizes
 from rpmnet_jax.pair_edges import edges as edges_lib
 
 MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
@@ -68,11 +68,23 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
     return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel if features else None, voxel, seed=index)
 
 
-def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int) -> tuple:
+def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int, levelled=None) -> tuple:
     """``([(i, j), ...], scores)``, ``i < j``: every pair up to ``all_pairs_up_to`` scans (``scores`` ``None``), else
-    each scan with its ``neighbours`` best partners by the bag-of-words overlap ``scores (S, S)`` and a spanning
-    tree of those scores (:mod:`rpmnet_jax.multiway.candidate_pairs`), whatever the order of the scans."""
+    each scan with its ``neighbours`` best partners by the overlap ``scores (S, S)`` and a spanning tree of those
+    scores (:mod:`rpmnet_jax.multiway.candidate_pairs`), whatever the order of the scans. The scores: with
+    ``levelled`` ``(sensors, voxel)`` (a levelled scene's scans, :func:`levelled`) the footprints' sinograms
+    (:mod:`rpmnet_jax.multiway.radon_scores`), else the bag of words."""
     if len(scans) <= all_pairs_up_to:
         return list(itertools.combinations(range(len(scans)), 2)), None
-    scores = candidate_pairs.overlap_scores(scans, seed=seed)
+    scores = (candidate_pairs.overlap_scores(scans, seed=seed) if levelled is None
+              else radon_scores.overlap_scores(scans, *levelled))
     return candidate_pairs.select_pairs(scores, neighbours), scores
+
+
+def levelled(prepared: Prepared):
+    """``(sensors, voxel)`` when ``prepared`` holds a levelled scene's scans (seen from inside, every sensor known,
+    and most scans spread least along a direction within 25° of z: wider than tall, z up), else None."""
+    if not prepared.scene or any(v is None for v in prepared.sensors):
+        return None
+    up = [abs(np.linalg.eigh(np.cov(s.points.T))[1][2, 0]) >= radon_scores.GROUND_NORMAL_Z for s in prepared.scans]
+    return (prepared.sensors, prepared.voxel) if np.mean(up) > 0.5 else None

@@ -10,7 +10,9 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    :mod:`rpmnet_jax.multiway.sizes`), normals averaged per voxel when given, else estimated (PCA) on the
    downsampled scan and facing its sensor where one is known (else away from its centroid);
 2. pair edges (:mod:`rpmnet_jax.multiway.edge_graph`): the candidate pairs are every pair up to ``all_pairs_up_to`` scans, else each scan with its
-   ``neighbours`` best partners by a cheap overlap estimate (a bag of FPFH words per scan) plus a spanning tree
+   ``neighbours`` best partners by a cheap overlap estimate (a bag of FPFH words per scan; for a levelled scene's
+   scans, z up with known sensors, the footprints' Radon sinograms, :mod:`rpmnet_jax.multiway.radon_scores`,
+   which find the neighbours of a town's stations where the bag of words does not) plus a spanning tree
    of those scores (:mod:`rpmnet_jax.multiway.candidate_pairs`: O(S·k) pairs whatever the file order), and where
    those leave separate groups of scans, up to ``BRIDGING_ROUNDS`` rounds of each outside scan's next
    ``neighbours`` partners in other groups. Each is
@@ -31,7 +33,11 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    Levenberg–Marquardt with a Cauchy kernel, edges beyond the χ² bound rejected) over those edges; wrong
    edges (a flipped pair) are rejected. The largest component of the kept edges is placed; its scans whose every
    path to the anchor crosses a kept classical edge with ``p_wrong`` ≥ the model's ``threshold`` (0.5: more likely
-   wrong than right) are reported in ``likely_wrong``;
+   wrong than right) are reported in ``likely_wrong``. With known sensors the answer is then checked where no
+   edge looked (:mod:`rpmnet_jax.multiway.conflicts`): placed scans it puts near one another that stand in each
+   other's free space point at a suspect edge; a suspect that is a bridge (no cycle confirms it: a wrong edge that
+   carried a group of scans onto a look-alike street) is rejected and the graph solved again, up to ``MAX_CUTS``
+   times, and its scans go to step 4;
 4. global (:mod:`rpmnet_jax.multiway.placement`): the scans outside it, in groups (those the pair edges join among
    themselves, with their own robust pose graph's relative poses, largest first; then single scans), each
    registered onto the merged, placed scans by :func:`rpmnet_jax.align` with ``init="global"`` (rotation
@@ -44,7 +50,8 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    ``refine="joint"`` (default) moves all poses together on their points (multi-view point-to-plane,
    :mod:`rpmnet_jax.pose_graphs.joint_refine`), then measures each pair as an edge; ``refine="icp"`` gives each
    an ICP edge from the current poses on up to ``refine_points`` points, and the robust pose graph of those
-   edges gives the poses (``refine_rounds`` times).
+   edges gives the poses (``refine_rounds`` times); then placed scans that the final poses put in one another's
+   free space, joined by no edge, are reported in ``likely_wrong``.
 
 Edge noise: an edge's covariance is the inverse of its point-to-plane information plus a floor of
 ``edge_sigma_deg`` (rotation) and ``edge_sigma_fraction × max_correspondence_distance`` (translation) per
@@ -63,9 +70,9 @@ import numpy as np
 
 from rpmnet_jax import config as config_lib, stopwatch
 from rpmnet_jax.classical import scoring
-from rpmnet_jax.geometry import offsets, threads
-from rpmnet_jax.multiway import candidate_pairs, edge_graph, options as options_lib, placement, preparation
-from rpmnet_jax.pair_edges import pair_engine
+from rpmnet_jax.geometry import cloud, offsets, threads
+from rpmnet_jax.multiway import candidate_pairs, conflicts, edge_graph, options as options_lib, placement, preparation
+from rpmnet_jax.pair_edges import edges as edges_lib, pair_engine
 from rpmnet_jax.pose_graphs import pose_graph
 from rpmnet_jax.multiway import refinement, sizes
 from rpmnet_jax.weights import loading
@@ -76,6 +83,7 @@ BRIDGING_ROUNDS = 3  # rounds of classical edges between the groups the candidat
 # A town's stations look alike to the bag of words: 30 stations of site seed 0 had 34 of their 46 true neighbour
 # pairs (< 15 m) among the candidates; the classical edges of all 435 pairs gave 72 passing answers, all right
 # (tuning data: site seed 0)
+MAX_CUTS = 20  # step 3b: suspect edges rejected at most (each one solve of the graph)
 NETWORK_NOISE_SCALE = 3.0  # the pair edges' short ICP is coarser: their noise floor is this many times larger
 
 
@@ -118,7 +126,7 @@ def align_scans(clouds, normals=None, *, viewpoints="auto",
         raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")
     with threads.compiled_loops(), pair_engine.PairEngine(scheduler, cache) as engine:
         run = _prepare(engine, clouds, normals, viewpoints, options, params, checkpoint, cfg, progress)
-        for stage in (_pair_edges, _pose_graph, _place_others, _finer_scans, _refine):
+        for stage in (_pair_edges, _pose_graph, _place_others, _finer_scans, _refine, _name_conflicts):
             stage(run)
         return _answer(run)
 
@@ -225,7 +233,8 @@ def _pair_edges(run: _Run) -> None:
     between separate groups of scans (on every pair without ``classical``)."""
     o, clock, engine = run.options, run.clock, run.engine
     with clock.stage("candidates"):
-        pairs, scores = preparation.pairs_to_register(run.scans, o.all_pairs_up_to, o.neighbours, o.seed)
+        pairs, scores = preparation.pairs_to_register(run.scans, o.all_pairs_up_to, o.neighbours, o.seed,
+                                                      preparation.levelled(run.prepared))
     weak = pairs
     if o.classical:
         with clock.stage("classical"):
@@ -265,7 +274,48 @@ def _pose_graph(run: _Run) -> None:
         weights = None if run.options.edge_doubt == "off" else edge_graph.doubt_weights(run.edges)
         run.poses, run.edges, run.rejected = edge_graph.solve(num_scans, run.edges, anchor,
                                                               run.noise(NETWORK_NOISE_SCALE), run.options.seed, weights)
+        anchor = _cut_conflicts(run, anchor)
         run.likely_wrong.update(edge_graph.resting_on_doubt(num_scans, run.edges, anchor))
+
+
+def _cut_conflicts(run: _Run, anchor: int) -> int:
+    """Step 3b (:mod:`~rpmnet_jax.multiway.conflicts`): while placed scans with known sensors that the answer puts
+    within reach of each other fail the free-space check and the suspect kept edge is a bridge (no cycle confirms
+    it), that edge is rejected and the graph solved again without it (at most ``MAX_CUTS`` times); the scans it
+    carried go to step 4. Returns the anchor of the graph solved last."""
+    cut = []
+    for _ in range(MAX_CUTS):
+        found = _conflicts(run)
+        weights = edge_graph.doubt_weights(run.edges) if run.options.edge_doubt != "off" else [
+            e.fitness for e in run.edges]
+        k = conflicts.suspect(len(run.scans), run.edges, weights, found) if found else None
+        if k is None:
+            break
+        pairs = [(e.source, e.target) for i, e in enumerate(run.edges) if i != k]
+        labels = pose_graph.components(len(run.scans), pairs)
+        if labels[run.edges[k].source] == labels[run.edges[k].target]:
+            break  # a cycle confirms it: the conflicts are named after the refinement
+        cut.append(run.edges[k])
+        edges = [e for e in run.pair_edges if not any(e is c for c in cut)]
+        anchor = edge_graph.largest_component(len(run.scans), edges)
+        run.poses, run.edges, run.rejected = edge_graph.solve(
+            len(run.scans), edges, anchor, run.noise(NETWORK_NOISE_SCALE), run.options.seed,
+            None if run.options.edge_doubt == "off" else edge_graph.doubt_weights(edges))
+    run.rejected += cut
+    return anchor
+
+
+def _conflicts(run: _Run) -> list:
+    """``[(i, j), ...]``: placed scans with known sensors within ``conflicts.REACH`` × the median robust scan radius
+    of each other at the current poses, joined by no edge of the current graph, whose implied pair fails the
+    free-space check."""
+    if all(v is None for v in run.prepared.sensors):
+        return []
+    reach = conflicts.REACH * float(np.median([cloud.robust_radius(s.points) for s in run.scans]))
+    joined = {(min(e.source, e.target), max(e.source, e.target)) for e in run.edges}
+    return [(i, j) for i, j in conflicts.near_placed(run.poses, run.prepared.sensors, reach) if (i, j) not in joined
+            and not run.visible(
+        edges_lib.Edge(i, j, np.linalg.inv(run.poses[j]) @ run.poses[i], 0.0, 0.0, np.zeros((6, 6)), 0.0, "implied"))]
 
 
 def _place_others(run: _Run) -> None:
@@ -339,6 +389,14 @@ def _refine(run: _Run) -> None:
         with run.clock.stage("graph"):
             run.poses, run.edges, run.refine_rejected = edge_graph.solve(
                 len(run.scans), run.edges, min(placed), run.noise(NETWORK_NOISE_SCALE), o.seed)
+
+
+def _name_conflicts(run: _Run) -> None:
+    """Step 5b: placed scans that the final poses put in one another's free space (:func:`_conflicts`) are named
+    ``likely_wrong`` (timed with the graph)."""
+    if any(v is not None for v in run.prepared.sensors) and len(run.placed()) > 1:
+        with run.clock.stage("graph"):
+            run.likely_wrong.update(s for pair in _conflicts(run) for s in pair)
 
 
 def _answer(run: _Run) -> ScanAlignment:

@@ -1,0 +1,49 @@
+"""Step 3b's pieces: which placed scans stand near each other, and which kept edge the conflicts point at."""
+
+from typing import NamedTuple
+
+import numpy as np
+
+from rpmnet_jax.multiway import conflicts
+
+
+class _Edge(NamedTuple):
+    source: int
+    target: int
+
+
+def _at(*xyz):
+    poses = np.tile(np.eye(4), (len(xyz), 1, 1))
+    poses[:, :3, 3] = xyz
+    return poses
+
+
+def test_near_placed_pairs_by_their_sensors():
+    poses = _at((0, 0, 0), (5, 0, 0), (30, 0, 0), (31, 0, 0))
+    poses[2] = np.nan  # unplaced
+    sensors = [np.zeros(3), np.zeros(3), np.zeros(3), np.array([-24.0, 0, 0])]  # scan 3's sensor at x = 7
+    assert conflicts.near_placed(poses, sensors, 6.0) == [(0, 1), (1, 3)]
+    assert conflicts.near_placed(poses, [np.zeros(3), None, None, None], 6.0) == []
+
+
+def test_the_edge_every_conflict_crosses_is_the_suspect():
+    # two chains 0-1-2-3 and 4-5-6 joined by the edge (3, 4): every conflict between them crosses it
+    kept = [_Edge(0, 1), _Edge(1, 2), _Edge(2, 3), _Edge(3, 4), _Edge(4, 5), _Edge(5, 6)]
+    weights = [0.9, 0.9, 0.9, 0.95, 0.9, 0.9]  # the join weighs most: the count decides, not the weight
+    assert conflicts.suspect(7, kept, weights, [(2, 4), (3, 5), (3, 6)]) == 3
+    # conflicts that every edge between 1 and 5 explains alike: the least trusted of those goes
+    assert conflicts.suspect(7, kept, [0.9, 0.9, 0.9, 0.3, 0.9, 0.9], [(1, 5), (2, 6), (0, 4)]) == 3
+    assert conflicts.suspect(7, kept, [0.9, 0.9, 0.5, 0.9, 0.9, 0.9], [(1, 5), (2, 6), (0, 4)]) == 2
+
+
+def test_a_cycle_edge_outside_the_tree_is_never_the_suspect():
+    kept = [_Edge(0, 1), _Edge(1, 2), _Edge(0, 2), _Edge(2, 3)]
+    weights = [0.9, 0.9, 0.1, 0.8]  # (0, 2) is the cycle's lightest edge: off the maximum spanning tree
+    assert conflicts.suspect(4, kept, weights, [(0, 3)]) in (1, 3)
+
+
+def test_no_conflict_joined_gives_none():
+    kept = [_Edge(0, 1), _Edge(2, 3)]
+    assert conflicts.suspect(5, kept, [1.0, 1.0], []) is None
+    assert conflicts.suspect(5, kept, [1.0, 1.0], [(0, 2)]) is None  # different trees of the forest
+    assert conflicts.suspect(5, kept, [1.0, 1.0], [(0, 4)]) is None  # scan 4 has no edge

@@ -1,0 +1,82 @@
+"""The footprint's sinogram score: the same for a scan turned about the vertical, high for neighbouring stations of a
+simulated site and lower for stations far apart; the ground left out; used by the scan sets only for a levelled
+scene's scans; bad input refused."""
+
+import numpy as np
+import pytest
+
+from rpmnet_jax.multiway import preparation, radon_scores
+from rpmnet_jax.simulation import sites
+
+
+class _Scan:
+    def __init__(self, points, normals):
+        self.points, self.normals = points, normals
+
+
+@pytest.fixture(scope="module")
+def site():
+    """12 stations of the site (a coarse 1.2° scanner), prepared as ``align_scans`` prepares them."""
+    _, stations = sites.stations(12, seed=0, step_deg=1.2)
+    prepared = preparation.prepare_scans([s.points for s in stations], None, None, np.zeros(3),
+                                         [np.zeros(3)] * 12, features=False)
+    return prepared, np.stack([s.pose for s in stations])
+
+
+def _turned(scan, degrees):
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return _Scan(scan.points @ rotation.T, scan.normals @ rotation.T)
+
+
+def test_a_turn_about_the_vertical_keeps_the_score(site):
+    prepared, _ = site
+    scan = prepared.scans[0]
+    scans = [scan, _turned(scan, 37.0), _turned(scan, 181.0)] + list(prepared.scans[1:])
+    scores = radon_scores.overlap_scores(scans, [np.zeros(3)] * len(scans), prepared.voxel)
+    assert scores[0, 1] > 0.95 and scores[0, 2] > 0.95  # 1 but for the grid's cells
+    assert min(scores[0, 1], scores[0, 2]) > scores[0, 3:].max()  # above every other station
+    np.testing.assert_allclose(scores, scores.T)
+
+
+def test_neighbouring_stations_score_above_far_ones(site):
+    prepared, truth = site
+    scores = radon_scores.overlap_scores(prepared.scans, prepared.sensors, prepared.voxel)
+    positions = truth[:, :3, 3]
+    distance = np.linalg.norm(positions[:, None] - positions[None], axis=-1)
+    near = (distance < 12.0) & ~np.eye(12, dtype=bool)
+    far = distance > 40.0
+    assert near.any() and far.any()
+    assert np.median(scores[near]) > np.percentile(scores[far], 90)
+
+
+def test_the_ground_under_the_sensor_is_found():
+    rng = np.random.default_rng(0)
+    ground = np.column_stack([rng.uniform(-10, 10, (2000, 2)), np.full(2000, -1.6)])
+    wall = np.column_stack([np.full(500, 5.0), rng.uniform(-5, 5, 500), rng.uniform(-1.6, 6.0, 500)])
+    points = np.concatenate([ground, wall])
+    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (2000, 1)), np.tile([-1.0, 0.0, 0.0], (500, 1))])
+    assert radon_scores.ground_height(points, normals, 8.0) == pytest.approx(-1.6)
+    # the ground's cells are left out: the same wall over another ground gives the same descriptor
+    other = np.concatenate([ground[::2], wall])
+    other_normals = np.concatenate([normals[:2000:2], normals[2000:]])
+    np.testing.assert_allclose(radon_scores.descriptor(points, normals, 0.5, 9.0),
+                               radon_scores.descriptor(other, other_normals, 0.5, 9.0))
+
+
+def test_only_a_levelled_scene_uses_it(site):
+    prepared, _ = site
+    assert preparation.levelled(prepared) is not None
+    on_its_side = prepared._replace(scans=[_Scan(s.points[:, [2, 0, 1]], s.normals[:, [2, 0, 1]])
+                                           for s in prepared.scans])
+    assert preparation.levelled(on_its_side) is None
+    assert preparation.levelled(prepared._replace(sensors=[None] * 12)) is None
+    assert preparation.levelled(prepared._replace(scene=False)) is None
+
+
+def test_bad_input_is_refused(site):
+    prepared, _ = site
+    with pytest.raises(ValueError, match="at least two scans"):
+        radon_scores.overlap_scores(prepared.scans[:1], prepared.sensors[:1], prepared.voxel)
+    with pytest.raises(ValueError, match="sensor"):
+        radon_scores.overlap_scores(prepared.scans[:2], [None, np.zeros(3)], prepared.voxel)
