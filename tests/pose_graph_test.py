@@ -129,3 +129,18 @@ def test_an_invalid_information_matrix_is_a_value_error(information):
     info[1] = information
     with pytest.raises(ValueError, match="positive semi-definite"):
         pose_graph.optimize(3, pairs, transforms, info, 0)
+
+
+def test_triangle_support_counts_the_triangles_that_agree():
+    rng = np.random.default_rng(3)
+    poses = np.stack([np.eye(4)] + [random_pose(rng) for _ in range(4)])
+    pairs = [(0, 1), (1, 2), (0, 2), (2, 3), (1, 3), (3, 4)]
+    transforms = np.stack([np.linalg.inv(poses[j]) @ poses[i] for i, j in pairs])
+    information = np.tile(np.eye(6) * 1e4, (len(pairs), 1, 1))
+    support = pose_graph.triangle_support(pairs, transforms, information, threshold=1.0)
+    # (1, 2) closes two triangles (with 0 and with 3); (3, 4) none
+    np.testing.assert_array_equal(support, [1, 2, 1, 1, 1, 0])
+    wrong = transforms.copy()
+    wrong[3] = transforms[3] @ np.diag([-1.0, -1.0, 1.0, 1.0])  # (2, 3) half turned
+    support = pose_graph.triangle_support(pairs, wrong, information, threshold=1.0)
+    np.testing.assert_array_equal(support, [1, 1, 1, 0, 0, 0])  # the triangle 1-2-3 no longer agrees

@@ -122,18 +122,47 @@ def edge_errors(poses, pairs, transforms, information) -> np.ndarray:
     return out
 
 
+def triangle_support(pairs, transforms, information, threshold: float) -> np.ndarray:
+    """``(E,)`` for each edge the number of triangles it closes with two other edges whose composition agrees with
+    it: ``ξᵀ Λ ξ ≤ threshold`` for ``ξ = Log(T⁻¹ T_kj T_ik)`` whitened by the edge's ``information (E, 6, 6)``. A
+    wrong edge rarely closes a consistent triangle (two other wrong edges would have to agree with it)."""
+    gtsam = _gtsam()
+    pairs, transforms = _as_pairs(pairs), np.asarray(transforms, np.float64)
+    step = {}  # (a, b) -> [transforms taking a's frame to b's]
+    for (i, j), t in zip(pairs, transforms):
+        step.setdefault((int(i), int(j)), []).append(t)
+        step.setdefault((int(j), int(i)), []).append(np.linalg.inv(t))
+    around = {}
+    for a, b in step:
+        around.setdefault(a, set()).add(b)
+    support = np.zeros(len(pairs), np.int64)
+    for e, (i, j) in enumerate(pairs):
+        for k in around[int(i)] & around[int(j)]:
+            agree = False
+            for t_ik in step[(int(i), k)]:
+                for t_kj in step[(k, int(j))]:
+                    xi = gtsam.Pose3.Logmap(gtsam.Pose3(_rigid(np.linalg.solve(transforms[e], t_kj @ t_ik))))
+                    agree = agree or float(xi @ information[e] @ xi) <= threshold
+            support[e] += agree
+    return support
+
+
 def consensus_tree(num_nodes: int, pairs, transforms, information, weights, anchor: int, *, threshold: float,
                    num_trees: int = 100, seed: int = 0) -> np.ndarray:
-    """``(E,)`` bool: of the maximum-``weights`` spanning tree and ``num_trees - 1`` random ones (Kruskal on
-    random keys, every other one scaled by the weights), the one whose poses put the most edges within
-    ``threshold`` (squared whitened error; ties: the larger weight) — a tree of mutually consistent edges
-    even where many edges are wrong and some wrong ones weigh most."""
+    """``(E,)`` bool: of the maximum-``weights`` spanning tree, ``num_trees - 1`` random ones (Kruskal on random
+    keys, every other one scaled by the weights) and the tree that takes the edges closing the most consistent
+    triangles first (:func:`triangle_support`, ties by weight), the one whose poses put the most edges within
+    ``threshold`` (squared whitened error; ties: the larger weight, then the earlier tree) — a tree of mutually
+    consistent edges even where many edges are wrong and some wrong ones weigh most. On a large graph a random
+    tree rarely misses every wrong edge (1,000 stations of the simulated site: 115 of 1,826 pair edges wrong)."""
     pairs, transforms = _as_pairs(pairs), np.asarray(transforms, np.float64)
     weights = np.asarray(weights, np.float64)
     rng = np.random.default_rng(seed)
+    support = triangle_support(pairs, transforms, information, threshold)
     best, best_score, seen = None, None, set()
-    for k in range(num_trees):
-        keys = weights if k == 0 else rng.uniform(size=len(weights)) * (weights if k % 2 else 1.0)
+    for k in range(num_trees + 1):  # the triangles' tree last: it wins only with strictly more consistent edges
+        keys = (weights if k == 0 else support + weights / (2.0 * max(float(weights.max()), 1e-12))
+                if k == num_trees else rng.uniform(size=len(weights)) * (weights if k % 2 else 1.0))
         tree = spanning_forest(num_nodes, pairs, keys)
         if tree.tobytes() in seen:
             continue
