@@ -105,6 +105,11 @@ def _without_paths(args: list) -> list:
     return out
 
 
+def slope(xs, ys) -> float:
+    """Least-squares slope of ``log y`` against ``log x`` (1: linear growth, 2: quadratic)."""
+    return float(np.polyfit(np.log(xs), np.log(ys), 1)[0])
+
+
 def emit(record: dict, path: str | None = None) -> None:
     """Prints ``record`` as one JSON line (and appends it to ``path``)."""
     line = json.dumps(record)

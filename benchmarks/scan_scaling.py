@@ -39,13 +39,6 @@ def make_set(folder: str, vertices, faces, scans: int, a) -> None:
         "seed": a.seed, "shuffle": True})
 
 
-def slope(xs, ys) -> float:
-    """Least-squares slope of ``log y`` against ``log x``."""
-    import numpy as np
-
-    return float(np.polyfit(np.log(xs), np.log(ys), 1)[0])
-
-
 def plot(path: str, rows) -> None:
     """Time, pairs and peak memory against scans, log-log, each beside lines of slope 1 and 2 through its first
     point."""
@@ -121,9 +114,9 @@ def main(argv=None) -> int:
     if len(rows) >= 2:
         n = [r["scans"] for r in rows]
         bench_utils.emit({"task": "scan_scaling_slopes", "sizes": n,
-                          "seconds_slope": slope(n, [r["seconds"] for r in rows]),
-                          "pairs_slope": slope(n, [r["pairs_registered"] for r in rows]),
-                          "peak_rss_slope": slope(n, [r["peak_rss_mb"] for r in rows])}, a.out_jsonl)
+                          "seconds_slope": bench_utils.slope(n, [r["seconds"] for r in rows]),
+                          "pairs_slope": bench_utils.slope(n, [r["pairs_registered"] for r in rows]),
+                          "peak_rss_slope": bench_utils.slope(n, [r["peak_rss_mb"] for r in rows])}, a.out_jsonl)
     if a.plot and rows:
         plot(a.plot, rows)
     return 0 if len(rows) == len(sizes) else 1

@@ -154,13 +154,11 @@ def main(argv=None) -> int:
         rows.append(record)
         bench_utils.emit(record, a.out_jsonl)
     if len(rows) >= 2:
-        import numpy as np
-
         n = [r["scans"] for r in rows]
-        bench_utils.emit({"task": "site_scaling_slopes", "sizes": n, "seconds_slope": float(
-            np.polyfit(np.log(n), np.log([r["seconds"] for r in rows]), 1)[0]),
-            "growth_over_linear": [round(b["seconds"] / a_["seconds"] / (b["scans"] / a_["scans"]), 2)
-                                   for a_, b in zip(rows, rows[1:])]}, a.out_jsonl)
+        bench_utils.emit({"task": "site_scaling_slopes", "sizes": n,
+                          "seconds_slope": bench_utils.slope(n, [r["seconds"] for r in rows]),
+                          "growth_over_linear": [round(b["seconds"] / a_["seconds"] / (b["scans"] / a_["scans"]), 2)
+                                                 for a_, b in zip(rows, rows[1:])]}, a.out_jsonl)
     if a.plot and rows:
         plot(a.plot, rows)
     return 0

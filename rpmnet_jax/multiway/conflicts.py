@@ -31,8 +31,7 @@ def near_placed(poses: np.ndarray, sensors, reach: float) -> list:
     if len(rows) < 2:
         return []
     at = np.array([poses[s, :3, :3] @ sensors[s] + poses[s, :3, 3] for s in rows])
-    return sorted((rows[a], rows[b]) if rows[a] < rows[b] else (rows[b], rows[a])
-                  for a, b in cKDTree(at).query_pairs(reach, output_type="ndarray"))
+    return sorted((rows[a], rows[b]) for a, b in cKDTree(at).query_pairs(reach, output_type="ndarray"))  # a < b
 
 
 def suspect(num_scans: int, kept, weights, conflicts) -> int | None:

@@ -168,6 +168,16 @@ class _Run:
         edges and the placement alike."""
         return edge_graph.free_space_check(self.scans, self.prepared.sensors, self.prepared.voxel)
 
+    @functools.cached_property
+    def conflict_reach(self) -> float:
+        """Step 3b's reach: ``conflicts.REACH`` × the median robust radius of the registration's scans."""
+        return conflicts.REACH * float(np.median([cloud.robust_radius(s.points) for s in self.scans]))
+
+    def ranking(self, edges) -> list:
+        """How the robust graph ranks ``edges``: their doubt weights, or their fitness with ``edge_doubt="off"``."""
+        return (edge_graph.doubt_weights(edges) if self.options.edge_doubt != "off"
+                else [e.fitness for e in edges])
+
     def noise(self, scale: float = 1.0) -> tuple:
         """The edge noise floor (rotation, translation sigmas), × ``scale``."""
         o = self.options
@@ -271,9 +281,9 @@ def _pose_graph(run: _Run) -> None:
         num_scans = len(run.scans)
         run.pair_edges = list(run.edges)
         anchor = edge_graph.largest_component(num_scans, run.edges)
-        weights = None if run.options.edge_doubt == "off" else edge_graph.doubt_weights(run.edges)
         run.poses, run.edges, run.rejected = edge_graph.solve(num_scans, run.edges, anchor,
-                                                              run.noise(NETWORK_NOISE_SCALE), run.options.seed, weights)
+                                                              run.noise(NETWORK_NOISE_SCALE), run.options.seed,
+                                                              run.ranking(run.edges))
         anchor = _cut_conflicts(run, anchor)
         run.likely_wrong.update(edge_graph.resting_on_doubt(num_scans, run.edges, anchor))
 
@@ -286,9 +296,7 @@ def _cut_conflicts(run: _Run, anchor: int) -> int:
     cut = []
     for _ in range(MAX_CUTS):
         found = _conflicts(run)
-        weights = edge_graph.doubt_weights(run.edges) if run.options.edge_doubt != "off" else [
-            e.fitness for e in run.edges]
-        k = conflicts.suspect(len(run.scans), run.edges, weights, found) if found else None
+        k = conflicts.suspect(len(run.scans), run.edges, run.ranking(run.edges), found) if found else None
         if k is None:
             break
         pairs = [(e.source, e.target) for i, e in enumerate(run.edges) if i != k]
@@ -299,21 +307,20 @@ def _cut_conflicts(run: _Run, anchor: int) -> int:
         edges = [e for e in run.pair_edges if not any(e is c for c in cut)]
         anchor = edge_graph.largest_component(len(run.scans), edges)
         run.poses, run.edges, run.rejected = edge_graph.solve(
-            len(run.scans), edges, anchor, run.noise(NETWORK_NOISE_SCALE), run.options.seed,
-            None if run.options.edge_doubt == "off" else edge_graph.doubt_weights(edges))
+            len(run.scans), edges, anchor, run.noise(NETWORK_NOISE_SCALE), run.options.seed, run.ranking(edges))
     run.rejected += cut
     return anchor
 
 
 def _conflicts(run: _Run) -> list:
-    """``[(i, j), ...]``: placed scans with known sensors within ``conflicts.REACH`` × the median robust scan radius
-    of each other at the current poses, joined by no edge of the current graph, whose implied pair fails the
+    """``[(i, j), ...]``: placed scans with known sensors within :attr:`_Run.conflict_reach` of each other at the
+    current poses, joined by no edge of the current graph, whose implied pair fails the
     free-space check."""
     if all(v is None for v in run.prepared.sensors):
         return []
-    reach = conflicts.REACH * float(np.median([cloud.robust_radius(s.points) for s in run.scans]))
     joined = {(min(e.source, e.target), max(e.source, e.target)) for e in run.edges}
-    return [(i, j) for i, j in conflicts.near_placed(run.poses, run.prepared.sensors, reach) if (i, j) not in joined
+    return [(i, j) for i, j in conflicts.near_placed(run.poses, run.prepared.sensors, run.conflict_reach)
+            if (i, j) not in joined
             and not run.visible(
         edges_lib.Edge(i, j, np.linalg.inv(run.poses[j]) @ run.poses[i], 0.0, 0.0, np.zeros((6, 6)), 0.0, "implied"))]
 

@@ -135,15 +135,15 @@ def triangle_support(pairs, transforms, information, threshold: float) -> np.nda
     around = {}
     for a, b in step:
         around.setdefault(a, set()).add(b)
+
+    def agrees(e: int, t_ik, t_kj) -> bool:
+        xi = gtsam.Pose3.Logmap(gtsam.Pose3(_rigid(np.linalg.solve(transforms[e], t_kj @ t_ik))))
+        return float(xi @ information[e] @ xi) <= threshold
+
     support = np.zeros(len(pairs), np.int64)
     for e, (i, j) in enumerate(pairs):
-        for k in around[int(i)] & around[int(j)]:
-            agree = False
-            for t_ik in step[(int(i), k)]:
-                for t_kj in step[(k, int(j))]:
-                    xi = gtsam.Pose3.Logmap(gtsam.Pose3(_rigid(np.linalg.solve(transforms[e], t_kj @ t_ik))))
-                    agree = agree or float(xi @ information[e] @ xi) <= threshold
-            support[e] += agree
+        support[e] = sum(any(agrees(e, t_ik, t_kj) for t_ik in step[(int(i), k)] for t_kj in step[(k, int(j))])
+                         for k in around[int(i)] & around[int(j)])
     return support
 
 
