@@ -60,6 +60,17 @@ def test_bridging_pairs_give_each_scan_outside_the_largest_group_its_next_partne
     assert candidate_pairs.bridging_pairs(scores, [0] * 6, set(), 2) == []  # one group: nothing to bridge
 
 
+def test_best_partners_rank_by_the_symmetric_score_never_the_scan_itself():
+    scores = np.array([[9.0, 1.0, 3.0, 2.0],
+                       [1.0, 9.0, 0.0, 5.0],
+                       [1.0, 0.0, 9.0, 4.0],  # (0, 2) averages to 2: a tie with (0, 3), to the lower index
+                       [2.0, 5.0, 4.0, 9.0]])
+    partners = candidate_pairs.best_partners(scores, 2)
+    assert partners(0) == [2, 3]
+    assert partners(3) == [1, 2]
+    assert candidate_pairs.best_partners(scores, 5)(1) == [3, 0, 2]
+
+
 def test_select_pairs_refuses_bad_input():
     for scores, k in [(np.ones((3, 2)), 2), (np.ones((1, 1)), 1), (np.full((3, 3), np.nan), 1), (np.ones((3, 3)), 0),
                       (np.ones((3, 3)), 1.5)]:

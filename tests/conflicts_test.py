@@ -30,20 +30,20 @@ def test_the_edge_every_conflict_crosses_is_the_suspect():
     # two chains 0-1-2-3 and 4-5-6 joined by the edge (3, 4): every conflict between them crosses it
     kept = [_Edge(0, 1), _Edge(1, 2), _Edge(2, 3), _Edge(3, 4), _Edge(4, 5), _Edge(5, 6)]
     weights = [0.9, 0.9, 0.9, 0.95, 0.9, 0.9]  # the join weighs most: the count decides, not the weight
-    assert conflicts.suspect(7, kept, weights, [(2, 4), (3, 5), (3, 6)]) == 3
-    # conflicts that every edge between 1 and 5 explains alike: the least trusted of those goes
-    assert conflicts.suspect(7, kept, [0.9, 0.9, 0.9, 0.3, 0.9, 0.9], [(1, 5), (2, 6), (0, 4)]) == 3
-    assert conflicts.suspect(7, kept, [0.9, 0.9, 0.5, 0.9, 0.9, 0.9], [(1, 5), (2, 6), (0, 4)]) == 2
+    assert conflicts.suspects(7, kept, weights, [(2, 4), (3, 5), (3, 6)]) == [3]
+    # conflicts that the edges (2, 3) and (3, 4) explain alike (3 each): both, the least trusted first
+    assert conflicts.suspects(7, kept, [0.9, 0.9, 0.9, 0.3, 0.9, 0.9], [(1, 5), (2, 6), (0, 4)]) == [3, 2]
+    assert conflicts.suspects(7, kept, [0.9, 0.9, 0.5, 0.9, 0.9, 0.9], [(1, 5), (2, 6), (0, 4)]) == [2, 3]
 
 
 def test_a_cycle_edge_outside_the_tree_is_never_the_suspect():
     kept = [_Edge(0, 1), _Edge(1, 2), _Edge(0, 2), _Edge(2, 3)]
     weights = [0.9, 0.9, 0.1, 0.8]  # (0, 2) is the cycle's lightest edge: off the maximum spanning tree
-    assert conflicts.suspect(4, kept, weights, [(0, 3)]) in (1, 3)
+    assert conflicts.suspects(4, kept, weights, [(0, 3)]) == [3, 0, 1]  # the tree path, lightest first
 
 
 def test_no_conflict_joined_gives_none():
     kept = [_Edge(0, 1), _Edge(2, 3)]
-    assert conflicts.suspect(5, kept, [1.0, 1.0], []) is None
-    assert conflicts.suspect(5, kept, [1.0, 1.0], [(0, 2)]) is None  # different trees of the forest
-    assert conflicts.suspect(5, kept, [1.0, 1.0], [(0, 4)]) is None  # scan 4 has no edge
+    assert conflicts.suspects(5, kept, [1.0, 1.0], []) == []
+    assert conflicts.suspects(5, kept, [1.0, 1.0], [(0, 2)]) == []  # different trees of the forest
+    assert conflicts.suspects(5, kept, [1.0, 1.0], [(0, 4)]) == []  # scan 4 has no edge

@@ -144,6 +144,17 @@ def bridging_pairs(scores, labels, tried, k: int) -> list:
     return sorted(out)
 
 
+def best_partners(scores, k: int):
+    """``partners(scan) -> [scan, ...]``: its ``k`` best-scored partners by ``scores (S, S)`` (made symmetric),
+    best first, ties to the lower index."""
+    scores = 0.5 * (np.asarray(scores, np.float64) + np.asarray(scores, np.float64).T)
+
+    def partners(i: int) -> list:
+        order = [int(j) for j in np.argsort(-scores[i], kind="stable") if j != i]
+        return order[:k]
+    return partners
+
+
 def select_pairs(scores, k: int) -> list:
     """Pairs ``[(i, j), ...]`` to register, ``i < j``, sorted: each scan with its ``k`` best-scored partners
     (``scores (S, S)`` symmetric, higher = more overlap; ties to the lower index) and the maximum spanning tree

@@ -5,7 +5,8 @@ They come in groups (:class:`Group`): the scans that the pair edges join among t
 relative to one another from their own robust pose graph, and single scans. A group moves as one: a member
 registered onto the merged scans places the whole group, and a group of several scans is placed only where none
 of its members lies in the free space of a placed scan it overlaps (on a site the streets look alike; a group
-spans more of one than a single scan does, so a look-alike street rarely takes all of it)."""
+spans more of one than a single scan does, so a look-alike street rarely takes all of it). In a campaign a
+scan is registered onto its best-scored placed partners only: local work, and fewer look-alike streets to land on."""
 
 from __future__ import annotations
 
@@ -30,13 +31,16 @@ class Group(NamedTuple):
     edges: tuple = ()  # the pair edges that join them (kept by their pose graph)
 
 
-def unplaced_groups(num_scans: int, pair_edges, poses: np.ndarray, noise: tuple, seed: int, weigh: bool) -> list:
+def unplaced_groups(num_scans: int, pair_edges, poses: np.ndarray, noise: tuple, seed: int, weigh: bool,
+                    weak_bar: float = 0.0) -> list:
     """The scans NaN in ``poses (S, 4, 4)`` as :class:`Group` s: each connected part of the ``pair_edges`` among
-    them with its own robust pose graph (:func:`~rpmnet_jax.multiway.edge_graph.solve` anchored at its first scan,
-    ``noise`` as there, the edges ranked by their doubt weights when ``weigh``), its members those that graph
-    placed; then every scan left, a group of one. Largest first, ties by their first scan."""
+    them (those with a balanced fitness of at least ``weak_bar``: a campaign's weak edges join no group,
+    :data:`~rpmnet_jax.multiway.edge_graph.WEAK_LINK`) with its own robust pose graph
+    (:func:`~rpmnet_jax.multiway.edge_graph.solve` anchored at its first scan, ``noise`` as there, the edges ranked
+    by their doubt weights when ``weigh``), its members those that graph placed; then every scan left, a group of
+    one. Largest first, ties by their first scan."""
     unplaced = ~np.isfinite(poses[:, 0, 0])
-    among = [e for e in pair_edges if unplaced[e.source] and unplaced[e.target]]
+    among = [e for e in pair_edges if unplaced[e.source] and unplaced[e.target] and e.balanced_fitness >= weak_bar]
     labels = pose_graph.components(num_scans, [(e.source, e.target) for e in among])
     groups, grouped = [], np.zeros(num_scans, bool)
     for label in np.unique(labels[unplaced]):
@@ -61,26 +65,41 @@ def merged(scans, poses, placed, voxel: float) -> tuple:
     return points, normals_lib.estimate_normals(points)
 
 
-def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, seed, tick, visible=None):
+def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, seed, tick, visible=None,
+                    partners=None, max_tries=None):
     """Places the ``groups`` (:class:`Group` s of the scans NaN in ``poses (S, 4, 4)``), in order: each member in
     turn registered onto the merged placed scans until one's answer passes ``accept(fitness, median plane
     residual, balanced fitness)`` and, for a group of several scans, ``visible(edge) -> bool`` (the pair edges'
     free-space check) on every member's edge to every placed scan; the group then placed, the scans merged again
     (``tick(placed, scans)``) and the groups left tried again from the first. A single scan whose edge to a placed
     scan fails ``visible`` is placed and named (a scan registered onto the merged scans can land on a street
-    elsewhere that looks alike). Returns (poses, the placed scans' edges to every scan placed before them and their
-    groups' edges, scans still pending, placed scans whose ``align`` answer was ``likely_wrong`` or failed
+    elsewhere that looks alike). With ``partners(scan) -> [scan, ...]`` (a campaign's best-scored partners of a
+    scan) a member is registered onto its placed partners only, its group's edges measured to those, and every
+    pending group is tried once a round from at most ``max_tries`` of its members that have placed partners (local
+    work: no merge of every placed scan, no restart after each placement). Returns (poses, the placed scans' edges to every scan placed before them (to the partners) and
+    their groups' edges, scans still pending, placed scans whose ``align`` answer was ``likely_wrong`` or failed
     ``visible``)."""
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
     pending = list(groups)
     edges, doubtful = [], []
+    spheres = [bounding_sphere(s.points) for s in scans]
     grew = True
     while pending and grew:
         grew = False
-        model, model_normals = merged(scans, poses, placed, voxel)
-        for group in pending:
-            answer = _place_group(scans, poses, placed, group, model, model_normals, params, cfg, max_dist, accept,
-                                  seed, visible)
+        if partners is None:
+            model = merged(scans, poses, placed, voxel)
+
+            def model_of(s, model=model, others=tuple(placed)):
+                return (*model, others)
+        else:
+            is_placed = np.isfinite(poses[:, 0, 0])
+
+            def model_of(s, is_placed=is_placed):
+                near = [o for o in partners(s) if is_placed[o]]
+                return (*merged(scans, poses, near, voxel), near) if near else None
+        for group in list(pending):
+            answer = _place_group(scans, poses, group, model_of, params, cfg, max_dist, accept, seed, visible,
+                                  spheres, max_tries)
             if answer is None:
                 continue
             found, seen_through, likely_wrong = answer
@@ -90,15 +109,38 @@ def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, 
             pending.remove(group)
             tick(len(placed), len(scans))
             grew = True
-            break  # the model grew: merge again before the next group
+            if partners is None:
+                break  # the model grew: merge again before the next group
     return poses, edges, [s for g in pending for s in g.members], doubtful
 
 
-def _place_group(scans, poses, placed, group, model, model_normals, params, cfg, max_dist, accept, seed, visible):
-    """The first member of ``group`` whose registration onto ``model`` places the group (see
-    :func:`place_remaining`): ``poses`` of its members set, ``(edges to the placed scans, whether one failed
-    visible, align's likely_wrong)``; None when none does (``poses`` untouched)."""
+def bounding_sphere(points: np.ndarray) -> tuple:
+    """``(centre (3,), radius)``: the centroid of ``points (N, 3)`` and the largest distance from it."""
+    centre = points.mean(axis=0)
+    return centre, float(np.sqrt(((points - centre) ** 2).sum(axis=1).max()))
+
+
+def _may_overlap(spheres, a: int, pose_a, b: int, pose_b, max_dist: float) -> bool:
+    """Whether scans ``a`` and ``b`` at these poses come within ``max_dist`` (their bounding spheres do)."""
+    (ca, ra), (cb, rb) = spheres[a], spheres[b]
+    gap = np.linalg.norm(pose_a[:3, :3] @ ca + pose_a[:3, 3] - pose_b[:3, :3] @ cb - pose_b[:3, 3])
+    return bool(gap <= ra + rb + max_dist)
+
+
+def _place_group(scans, poses, group, model_of, params, cfg, max_dist, accept, seed, visible, spheres,
+                 max_tries=None):
+    """The first member of ``group`` whose registration onto its model places the group (see
+    :func:`place_remaining`; ``model_of(scan) -> (points, normals, the placed scans in it)`` or None): ``poses`` of
+    its members set, ``(edges to those placed scans it may overlap (``spheres``: each scan's bounding sphere; no
+    edge where they keep apart: its fitness would be 0), whether one failed visible, align's likely_wrong)``; None
+    when none does (``poses`` untouched); at most ``max_tries`` members registered (None: every one)."""
+    tries = 0
     for k, s in enumerate(group.members):
+        local = model_of(s) if max_tries is None or tries < max_tries else None
+        if local is None:
+            continue
+        tries += 1
+        model, model_normals, others = local
         a = alignment.align(scans[s].points, model, scans[s].normals, model_normals, params=params, cfg=cfg,
                             init="global", max_correspondence_distance=max_dist, seed=seed)
         residuals = scoring.plane_fit(scans[s].points, model, model_normals, a.transform, a.correspondences).residuals
@@ -108,7 +150,7 @@ def _place_group(scans, poses, placed, group, model, model_normals, params, cfg,
         frame = a.transform @ np.linalg.inv(group.poses[k])  # the group's frame → the placed scans' frame
         at = {m: frame @ p for m, p in zip(group.members, group.poses)}
         found = [edges_lib.measure(scans, m, o, np.linalg.inv(poses[o]) @ at[m], max_dist, "global")
-                 for m in group.members for o in placed]
+                 for m in group.members for o in others if _may_overlap(spheres, m, at[m], o, poses[o], max_dist)]
         seen_through = visible is not None and not all(visible(e) for e in found)
         if seen_through and len(group.members) > 1:
             continue  # a group lies where its scans could not have been: another member may place it right

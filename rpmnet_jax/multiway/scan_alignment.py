@@ -26,12 +26,15 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    distance; a pair's distinct answers (a symmetric shape's flip) all go to the graph, each classical answer with
    its ``p_wrong`` from the edge doubt model (:mod:`rpmnet_jax.multiway.edge_doubt`; with
    ``edge_doubt="reject"``, those at ``p_wrong`` ≥ its ``reject_threshold`` stay out). On the 10 bunny scans the
-   classical edges connect every scan and the network does not run;
+   classical edges connect every scan and the network does not run. In a levelled scene's campaign (footprint
+   scores) an edge below ``edge_graph.WEAK_LINK`` × the median balanced fitness of the pair edges is weak;
 3. robust pose graph (:mod:`rpmnet_jax.pose_graphs.pose_graph`: a consensus spanning tree whose edges are ranked by
    fitness × (1 − ``p_wrong``) (``edge_doubt="weigh"``, the default; a symmetric shape's flip often overlaps
    more than the right answer, and its ``p_wrong`` is what tells them apart), GTSAM's
    Levenberg–Marquardt with a Cauchy kernel, edges beyond the χ² bound rejected) over those edges; wrong
-   edges (a flipped pair) are rejected. The largest component of the kept edges is placed; its scans whose every
+   edges (a flipped pair) are rejected. A campaign's kept weak edges that alone join scans are rejected too (a
+   town's look-alike street matches the ground and little else). The largest component of the kept edges is
+   placed; its scans whose every
    path to the anchor crosses a kept classical edge with ``p_wrong`` ≥ the model's ``threshold`` (0.5: more likely
    wrong than right) are reported in ``likely_wrong``. With known sensors the answer is then checked where no
    edge looked (:mod:`rpmnet_jax.multiway.conflicts`): placed scans it puts near one another that stand in each
@@ -41,7 +44,8 @@ one run state (:class:`_Run`); each step's work lives in its own module.
 4. global (:mod:`rpmnet_jax.multiway.placement`): the scans outside it, in groups (those the pair edges join among
    themselves, with their own robust pose graph's relative poses, largest first; then single scans), each
    registered onto the merged, placed scans by :func:`rpmnet_jax.align` with ``init="global"`` (rotation
-   hypotheses covering every orientation, one batched call), a group's members in turn until one places it;
+   hypotheses covering every orientation, one batched call; in a campaign onto its ``PLACE_PARTNERS`` best-scored
+   partners that are placed, not every placed scan), a group's members in turn until one places it;
    placed when its fitness is at least ``min_fitness``, else left out with a warning (it overlaps nothing); with
    known sensors a group of several is not placed where a member lies in a placed scan's free space, and a single
    scan placed there is reported in ``likely_wrong``, as is a placement ``align`` flags ``likely_wrong``
@@ -83,7 +87,10 @@ BRIDGING_ROUNDS = 3  # rounds of classical edges between the groups the candidat
 # A town's stations look alike to the bag of words: 30 stations of site seed 0 had 34 of their 46 true neighbour
 # pairs (< 15 m) among the candidates; the classical edges of all 435 pairs gave 72 passing answers, all right
 # (tuning data: site seed 0)
-MAX_CUTS = 20  # step 3b: suspect edges rejected at most (each one solve of the graph)
+MAX_CUTS = 20  # step 3b: rounds of cuts at most (each one check of the conflicts)
+PLACE_PARTNERS = 12  # step 4 in a campaign: a scan registered onto its placed partners among this many best-scored
+# (the footprints' 6 best hold a site station's nearest one for 96%, radon_scores)
+PLACE_TRIES = 3  # ... from at most this many members of a group a round (not compared)
 NETWORK_NOISE_SCALE = 3.0  # the pair edges' short ICP is coarser: their noise floor is this many times larger
 
 
@@ -155,6 +162,8 @@ class _Run:
     global_edges: list = dataclasses.field(default_factory=list)  # placement's edges kept
     pending: list = dataclasses.field(default_factory=list)  # scans placement could not place
     likely_wrong: set = dataclasses.field(default_factory=set)
+    scores: np.ndarray = None  # (S, S) a campaign's candidate scores (None: every pair was a candidate)
+    weak_bar: float = 0.0  # a campaign's weak links (edge_graph.WEAK_LINK): 0 where every edge may join scans
     counts: dict = dataclasses.field(default_factory=dict)  # pairs registered per stage
 
     @property
@@ -177,6 +186,19 @@ class _Run:
         """How the robust graph ranks ``edges``: their doubt weights, or their fitness with ``edge_doubt="off"``."""
         return (edge_graph.doubt_weights(edges) if self.options.edge_doubt != "off"
                 else [e.fitness for e in edges])
+
+    def solve(self, edges) -> tuple:
+        """The robust graph of pair ``edges`` anchored in their largest component, less its weak links
+        (:func:`~rpmnet_jax.multiway.edge_graph.without_weak_links` at :attr:`weak_bar`): (poses, kept, rejected,
+        the first placed scan)."""
+        num_scans = len(self.scans)
+        poses, kept, rejected = edge_graph.solve(num_scans, edges, edge_graph.largest_component(num_scans, edges),
+                                                 self.noise(NETWORK_NOISE_SCALE), self.options.seed,
+                                                 self.ranking(edges))
+        if self.weak_bar > 0:
+            poses, kept, links = edge_graph.without_weak_links(num_scans, poses, kept, self.weak_bar)
+            rejected = rejected + links
+        return poses, kept, rejected, int(np.flatnonzero(np.isfinite(poses[:, 0, 0]))[0])
 
     def noise(self, scale: float = 1.0) -> tuple:
         """The edge noise floor (rotation, translation sigmas), × ``scale``."""
@@ -243,8 +265,9 @@ def _pair_edges(run: _Run) -> None:
     between separate groups of scans (on every pair without ``classical``)."""
     o, clock, engine = run.options, run.clock, run.engine
     with clock.stage("candidates"):
-        pairs, scores = preparation.pairs_to_register(run.scans, o.all_pairs_up_to, o.neighbours, o.seed,
-                                                      preparation.levelled(run.prepared))
+        levelled = preparation.levelled(run.prepared)
+        pairs, scores = preparation.pairs_to_register(run.scans, o.all_pairs_up_to, o.neighbours, o.seed, levelled)
+        run.scores = scores
     weak = pairs
     if o.classical:
         with clock.stage("classical"):
@@ -254,6 +277,8 @@ def _pair_edges(run: _Run) -> None:
                                                           run.pair_edge, o.edge_doubt == "reject", run.visible)))
 
             found = classical(pairs, "classical edges")
+            if scores is not None and levelled is not None:  # a levelled scene's campaign: weak links
+                run.weak_bar = edge_graph.weak_bar([e for answers in found.values() for e in answers])
             for r in range(BRIDGING_ROUNDS if scores is not None else 0):  # the groups left apart: next partners
                 kept = [(e.source, e.target) for answers in found.values() for e in answers]
                 labels = pose_graph.components(len(run.scans), kept)
@@ -280,36 +305,33 @@ def _pose_graph(run: _Run) -> None:
     with run.clock.stage("graph"):
         num_scans = len(run.scans)
         run.pair_edges = list(run.edges)
-        anchor = edge_graph.largest_component(num_scans, run.edges)
-        run.poses, run.edges, run.rejected = edge_graph.solve(num_scans, run.edges, anchor,
-                                                              run.noise(NETWORK_NOISE_SCALE), run.options.seed,
-                                                              run.ranking(run.edges))
+        run.poses, run.edges, run.rejected, anchor = run.solve(run.edges)
         anchor = _cut_conflicts(run, anchor)
         run.likely_wrong.update(edge_graph.resting_on_doubt(num_scans, run.edges, anchor))
 
 
 def _cut_conflicts(run: _Run, anchor: int) -> int:
     """Step 3b (:mod:`~rpmnet_jax.multiway.conflicts`): while placed scans with known sensors that the answer puts
-    within reach of each other fail the free-space check and the suspect kept edge is a bridge (no cycle confirms
-    it), that edge is rejected and the graph solved again without it (at most ``MAX_CUTS`` times); the scans it
-    carried go to step 4. Returns the anchor of the graph solved last."""
-    cut = []
+    within reach of each other fail the free-space check and suspect kept edges are bridges (no cycle confirms
+    them), those bridges are cut (:func:`~rpmnet_jax.multiway.edge_graph.cut`: the graph is not solved again) and
+    the scans they carried go to step 4 (at most ``MAX_CUTS`` rounds). Returns the anchor of what stays."""
     for _ in range(MAX_CUTS):
         found = _conflicts(run)
-        k = conflicts.suspect(len(run.scans), run.edges, run.ranking(run.edges), found) if found else None
-        if k is None:
-            break
-        pairs = [(e.source, e.target) for i, e in enumerate(run.edges) if i != k]
-        labels = pose_graph.components(len(run.scans), pairs)
-        if labels[run.edges[k].source] == labels[run.edges[k].target]:
-            break  # a cycle confirms it: the conflicts are named after the refinement
-        cut.append(run.edges[k])
-        edges = [e for e in run.pair_edges if not any(e is c for c in cut)]
-        anchor = edge_graph.largest_component(len(run.scans), edges)
-        run.poses, run.edges, run.rejected = edge_graph.solve(
-            len(run.scans), edges, anchor, run.noise(NETWORK_NOISE_SCALE), run.options.seed, run.ranking(edges))
-    run.rejected += cut
+        suspects = conflicts.suspects(len(run.scans), run.edges, run.ranking(run.edges), found) if found else []
+        bridges = {k for k in suspects if _bridge(len(run.scans), run.edges, k)}
+        if not bridges:
+            break  # a cycle confirms each suspect: the conflicts are named after the refinement
+        run.poses, run.edges, dropped = edge_graph.cut(len(run.scans), run.poses, run.edges,
+                                                       [k in bridges for k in range(len(run.edges))])
+        run.rejected += dropped
+        anchor = min(run.placed())
     return anchor
+
+
+def _bridge(num_scans: int, edges, k: int) -> bool:
+    """Whether ``edges[k]`` is a bridge of ``edges``: no other path joins its scans."""
+    labels = pose_graph.components(num_scans, [(e.source, e.target) for i, e in enumerate(edges) if i != k])
+    return bool(labels[edges[k].source] != labels[edges[k].target])
 
 
 def _conflicts(run: _Run) -> list:
@@ -338,13 +360,15 @@ def _place_others(run: _Run) -> None:
     with run.clock.stage("global"):
         run.params = run.params if run.params is not None else loading.load_params(None)
         groups = placement.unplaced_groups(len(run.scans), run.pair_edges, run.poses, run.noise(NETWORK_NOISE_SCALE),
-                                           o.seed, o.edge_doubt != "off")
+                                           o.seed, o.edge_doubt != "off", run.weak_bar)
         run.poses, found, run.pending, doubtful = placement.place_remaining(
             run.scans, run.poses, groups, run.params, run.cfg, run.prepared.voxel, run.max_dist, seed=o.seed,
             tick=run.tick("placing the other scans"),
             accept=lambda fitness, residual, balanced: (fitness >= o.min_fitness and balanced >= run.balance_bar
                                                         and residual <= run.plane_bar * run.max_dist),
-            visible=lambda e: e.fitness < o.min_overlap or run.visible(e))
+            visible=lambda e: e.fitness < o.min_overlap or run.visible(e),
+            partners=None if run.scores is None else candidate_pairs.best_partners(run.scores, PLACE_PARTNERS),
+            max_tries=None if run.scores is None else PLACE_TRIES)
         run.counts["global"] = sum(e.stage == "global" for e in found)
         run.global_edges = [e for e in found if e.stage != "global" or run.good(e, o.min_overlap)]
         run.edges += run.global_edges
