@@ -184,6 +184,45 @@ def test_a_group_moves_as_one_and_is_not_placed_in_free_space(monkeypatch):
         np.testing.assert_allclose(poses[s], truth[s], atol=1e-9)
 
 
+def test_a_campaign_places_each_scan_onto_its_placed_partners_only(monkeypatch):
+    """Step 4 with ``partners``: a scan is registered onto its placed partners merged (not every placed scan), a
+    scan without a placed partner waits for a later round, and a group is tried from at most ``max_tries``
+    members a round."""
+    import types
+
+    clouds, _ = synthetic_scans()
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]  # three scans
+    calls = []
+
+    def align(src, model, *a, **k):
+        calls.append(len(model))
+        return types.SimpleNamespace(transform=np.eye(4), fitness=1.0, correspondences=np.zeros((0, 2), int),
+                                     likely_wrong=False)
+
+    monkeypatch.setattr(placement.alignment, "align", align)
+    poses = np.full((3, 4, 4), np.nan)
+    poses[0] = np.eye(4)
+    partners = {1: [0], 2: [1]}.get  # a chain: scan 2's partner is placed only once scan 1 is
+    singles = [placement.Group((s,), np.eye(4)[None]) for s in (2, 1)]
+    poses, edges, pending, doubtful = placement.place_remaining(
+        scans, poses, singles, None, None, voxel, sizes.DISTANCE_VOXELS * voxel, lambda *_: True, 0,
+        lambda *_: None, partners=partners, max_tries=1)
+    assert pending == [] and np.isfinite(poses).all()
+    # scan 1 onto scan 0 alone, then 2 onto 1 alone: one registration each
+    assert calls == [len(placement.merged(scans, np.tile(np.eye(4), (3, 1, 1)), [s], voxel)[0]) for s in (0, 1)]
+    assert {(e.source, e.target) for e in edges} == {(1, 0), (2, 1)}
+
+    calls.clear()
+    refuse = lambda fitness, residual, balanced: False  # noqa: E731
+    group = placement.Group((1, 2), np.tile(np.eye(4), (2, 1, 1)))
+    poses = np.full((3, 4, 4), np.nan)
+    poses[0] = np.eye(4)
+    _, _, pending, _ = placement.place_remaining(
+        scans, poses, [group], None, None, voxel, sizes.DISTANCE_VOXELS * voxel, refuse, 0, lambda *_: None,
+        partners=lambda s: [0], max_tries=1)
+    assert pending == [1, 2] and len(calls) == 1
+
+
 def test_unplaced_scans_joined_by_edges_form_a_group_with_their_relative_poses():
     """The scans the pose graph left out come back as groups: those joined by pair edges with their own graph's
     relative poses (largest first), then single scans."""

@@ -32,24 +32,35 @@ def screened(answers_per_pair, max_dist: float, good, reject: bool, visible=None
     return found
 
 
-def free_space_check(scans, sensors, voxel: float):
-    """``visible(edge) -> bool``: whether the edge keeps each scan out of the other's free space
-    (:mod:`rpmnet_jax.geometry.visibility`, on the scans' grid of ``voxel``); edges between scans without known
-    sensors pass."""
-    images = {}
+class FreeSpace:
+    """``free_space(edge) -> bool``: whether the edge keeps each scan out of the other's free space
+    (:mod:`rpmnet_jax.geometry.visibility`, on the scans' grid of ``voxel``), each scan's range image made once;
+    ``free_space.clear(i, j, transform)`` the same for any transform of scan ``i`` into scan ``j``'s frame. Scans
+    without known sensors pass."""
 
-    def image(k):
-        if k not in images:
-            images[k] = visibility.range_image(scans[k].points, sensors[k])
-        return images[k]
+    def __init__(self, scans, sensors, voxel: float):
+        self.scans, self.sensors, self.margin = scans, sensors, visibility.margin(voxel)
+        self.images = {}
 
-    def visible(e) -> bool:
-        if sensors[e.source] is None or sensors[e.target] is None:
+    def image(self, k: int):
+        if k not in self.images:
+            self.images[k] = visibility.range_image(self.scans[k].points, self.sensors[k])
+        return self.images[k]
+
+    def clear(self, i: int, j: int, transform: np.ndarray) -> bool:
+        if self.sensors[i] is None or self.sensors[j] is None:
             return True
-        return visibility.violation(scans[e.source].points, image(e.source), scans[e.target].points,
-                                    image(e.target), e.transform, visibility.margin(voxel)
-                                    ) <= visibility.MAX_FREE_SPACE_SHARE
-    return visible
+        return visibility.violation(self.scans[i].points, self.image(i), self.scans[j].points, self.image(j),
+                                    transform, self.margin) <= visibility.MAX_FREE_SPACE_SHARE
+
+    def __call__(self, e) -> bool:
+        return self.clear(e.source, e.target, e.transform)
+
+
+def free_space_check(scans, sensors, voxel: float) -> FreeSpace:
+    """``visible(edge) -> bool`` (:class:`FreeSpace`): whether the edge keeps each scan out of the other's free
+    space; edges between scans without known sensors pass."""
+    return FreeSpace(scans, sensors, voxel)
 
 
 def doubt_weights(edges) -> list:

@@ -342,9 +342,7 @@ def _conflicts(run: _Run) -> list:
         return []
     joined = {(min(e.source, e.target), max(e.source, e.target)) for e in run.edges}
     return [(i, j) for i, j in conflicts.near_placed(run.poses, run.prepared.sensors, run.conflict_reach)
-            if (i, j) not in joined
-            and not run.visible(
-        edges_lib.Edge(i, j, np.linalg.inv(run.poses[j]) @ run.poses[i], 0.0, 0.0, np.zeros((6, 6)), 0.0, "implied"))]
+            if (i, j) not in joined and not run.visible.clear(i, j, np.linalg.inv(run.poses[j]) @ run.poses[i])]
 
 
 def _place_others(run: _Run) -> None:
