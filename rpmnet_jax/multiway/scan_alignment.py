@@ -38,9 +38,9 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    path to the anchor crosses a kept classical edge with ``p_wrong`` ≥ the model's ``threshold`` (0.5: more likely
    wrong than right) are reported in ``likely_wrong``. With known sensors the answer is then checked where no
    edge looked (:mod:`rpmnet_jax.multiway.conflicts`): placed scans it puts near one another that stand in each
-   other's free space point at a suspect edge; a suspect that is a bridge (no cycle confirms it: a wrong edge that
-   carried a group of scans onto a look-alike street) is rejected and the graph solved again, up to ``MAX_CUTS``
-   times, and its scans go to step 4;
+   other's free space point at suspect edges (every one of a tie); the suspects that are bridges (no cycle confirms
+   them: a wrong edge that carried a group of scans onto a look-alike street) are cut, without solving the graph
+   again, up to ``MAX_CUTS`` rounds, and the scans they carried go to step 4;
 4. global (:mod:`rpmnet_jax.multiway.placement`): the scans outside it, in groups (those the pair edges join among
    themselves, with their own robust pose graph's relative poses, largest first; then single scans), each
    registered onto the merged, placed scans by :func:`rpmnet_jax.align` with ``init="global"`` (rotation
