@@ -39,8 +39,8 @@ def suspects(num_scans: int, kept, weights, conflicts) -> list:
     ``conflicts`` ``[(i, j), ...]``: of the maximum-``weights`` spanning forest of ``kept``, the edges on the most
     conflicting pairs' paths, every one of a tie (along a chain of bridges the conflicts cannot tell which link
     is wrong: on 1,000 site stations, seed 3, a wrong edge and the right one next to it were crossed by the same
-    705 conflicts, and the doubt weights favoured the wrong one), lowest weight first. Empty without a conflict
-    joined by the forest."""
+    705 conflicts, and the doubt weights favoured the wrong one), lowest weight first; where no edge is crossed
+    twice (one conflict's path) only the lightest. Empty without a conflict joined by the forest."""
     pairs = np.array([(e.source, e.target) for e in kept], np.int64).reshape(-1, 2)
     tree = np.flatnonzero(pose_graph.spanning_forest(num_scans, pairs, weights))
     neighbours = [[] for _ in range(num_scans)]
@@ -77,4 +77,5 @@ def suspects(num_scans: int, kept, weights, conflicts) -> list:
     if not crossed.any():
         return []
     w = np.asarray(weights, np.float64)
-    return sorted((int(e) for e in np.flatnonzero(crossed == crossed.max())), key=lambda e: (w[e], e))
+    tied = sorted((int(e) for e in np.flatnonzero(crossed == crossed.max())), key=lambda e: (w[e], e))
+    return tied if crossed.max() > 1 else tied[:1]

@@ -120,8 +120,8 @@ def without_weak_links(num_scans: int, poses: np.ndarray, kept, bar: float) -> t
 def cut(num_scans: int, poses: np.ndarray, kept, drop) -> tuple:
     """A solved graph (``poses (S, 4, 4)``, ``kept`` edges) less the kept edges where ``drop`` is true, without
     solving again (another solve would let in other edges that the dropped ones had kept out): only the part with
-    the most scans of what stays joined keeps its poses (where a dropped edge was a bridge it moved nothing on that
-    side). Returns (poses, NaN off that part; its kept edges; the dropped edges)."""
+    the most scans of what stays joined keeps its poses as solved (a dropped bridge moved nothing on that side; a
+    dropped edge in a loop did, and the refinement settles that). Returns (poses, NaN off that part; its kept edges; the dropped edges)."""
     if not any(drop):
         return poses, list(kept), []
     stay = [e for e, d in zip(kept, drop) if not d]

@@ -70,15 +70,16 @@ def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, 
     """Places the ``groups`` (:class:`Group` s of the scans NaN in ``poses (S, 4, 4)``), in order: each member in
     turn registered onto the merged placed scans until one's answer passes ``accept(fitness, median plane
     residual, balanced fitness)`` and, for a group of several scans, ``visible(edge) -> bool`` (the pair edges'
-    free-space check) on every member's edge to every placed scan; the group then placed, the scans merged again
-    (``tick(placed, scans)``) and the groups left tried again from the first. A single scan whose edge to a placed
-    scan fails ``visible`` is placed and named (a scan registered onto the merged scans can land on a street
-    elsewhere that looks alike). With ``partners(scan) -> [scan, ...]`` (a campaign's best-scored partners of a
-    scan) a member is registered onto its placed partners only, its group's edges measured to those, and every
-    pending group is tried once a round from at most ``max_tries`` of its members that have placed partners (local
-    work: no merge of every placed scan, no restart after each placement). Returns (poses, the placed scans' edges to every scan placed before them (to the partners) and
-    their groups' edges, scans still pending, placed scans whose ``align`` answer was ``likely_wrong`` or failed
-    ``visible``)."""
+    free-space check) on every member's edge to the placed scans it may overlap (bounding spheres within
+    ``max_dist``); the group then placed, the scans merged again (``tick(placed, scans)``) and the groups left
+    tried again from the first. A single scan whose edge to a placed scan fails ``visible`` is placed and named (a
+    scan registered onto the merged scans can land on a street elsewhere that looks alike). With
+    ``partners(scan) -> [scan, ...]`` (a levelled campaign's best-scored partners of a scan) a member is registered
+    onto its placed partners only, its group's edges measured to those, and every pending group is tried once a
+    round from at most ``max_tries`` of its members that have placed partners (local work: no merge of every
+    placed scan, no restart after each placement). Returns (poses, the placed scans' edges to the scans placed
+    before them that they may overlap (the partners) and their groups' edges, scans still pending, placed scans
+    whose ``align`` answer was ``likely_wrong`` or failed ``visible``)."""
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
     pending = list(groups)
     edges, doubtful = [], []

@@ -44,8 +44,9 @@ one run state (:class:`_Run`); each step's work lives in its own module.
 4. global (:mod:`rpmnet_jax.multiway.placement`): the scans outside it, in groups (those the pair edges join among
    themselves, with their own robust pose graph's relative poses, largest first; then single scans), each
    registered onto the merged, placed scans by :func:`rpmnet_jax.align` with ``init="global"`` (rotation
-   hypotheses covering every orientation, one batched call; in a campaign onto its ``PLACE_PARTNERS`` best-scored
-   partners that are placed, not every placed scan), a group's members in turn until one places it;
+   hypotheses covering every orientation, one batched call; in a levelled scene's campaign onto its
+   ``PLACE_PARTNERS`` best-scored partners that are placed, not every placed scan), a group's members in turn
+   until one places it;
    placed when its fitness is at least ``min_fitness``, else left out with a warning (it overlaps nothing); with
    known sensors a group of several is not placed where a member lies in a placed scan's free space, and a single
    scan placed there is reported in ``likely_wrong``, as is a placement ``align`` flags ``likely_wrong``
@@ -76,7 +77,7 @@ from rpmnet_jax import config as config_lib, stopwatch
 from rpmnet_jax.classical import scoring
 from rpmnet_jax.geometry import cloud, offsets, threads
 from rpmnet_jax.multiway import candidate_pairs, conflicts, edge_graph, options as options_lib, placement, preparation
-from rpmnet_jax.pair_edges import edges as edges_lib, pair_engine
+from rpmnet_jax.pair_edges import pair_engine
 from rpmnet_jax.pose_graphs import pose_graph
 from rpmnet_jax.multiway import refinement, sizes
 from rpmnet_jax.weights import loading
@@ -162,7 +163,7 @@ class _Run:
     global_edges: list = dataclasses.field(default_factory=list)  # placement's edges kept
     pending: list = dataclasses.field(default_factory=list)  # scans placement could not place
     likely_wrong: set = dataclasses.field(default_factory=set)
-    scores: np.ndarray = None  # (S, S) a campaign's candidate scores (None: every pair was a candidate)
+    scores: np.ndarray = None  # (S, S) a levelled scene's campaign's footprint scores (else None)
     weak_bar: float = 0.0  # a campaign's weak links (edge_graph.WEAK_LINK): 0 where every edge may join scans
     counts: dict = dataclasses.field(default_factory=dict)  # pairs registered per stage
 
@@ -267,7 +268,7 @@ def _pair_edges(run: _Run) -> None:
     with clock.stage("candidates"):
         levelled = preparation.levelled(run.prepared)
         pairs, scores = preparation.pairs_to_register(run.scans, o.all_pairs_up_to, o.neighbours, o.seed, levelled)
-        run.scores = scores
+        run.scores = scores if levelled is not None else None
     weak = pairs
     if o.classical:
         with clock.stage("classical"):
@@ -431,7 +432,8 @@ def _name_conflicts(run: _Run) -> None:
 def _answer(run: _Run) -> ScanAlignment:
     """The poses relative to the first placed scan and the edges, moved back by the shift; what was left out."""
     if run.pending:
-        warnings.warn(f"scans {run.pending} overlap none of the placed scans (no registration onto them reached "
+        onto = "them" if run.scores is None else "their best-scored placed partners"
+        warnings.warn(f"scans {run.pending} overlap none of the placed scans (no registration onto {onto} reached "
                       f"fitness {run.options.min_fitness} with coinciding surfaces); left out", LeftOutWarning,
                       stacklevel=3)
     left_out = tuple(s for s in range(len(run.scans)) if s not in run.placed())
