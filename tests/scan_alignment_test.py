@@ -141,7 +141,7 @@ def test_a_placement_in_another_scan_s_free_space_is_named(monkeypatch):
 
     stations = rooms.stations(0)[:2]
     prepared = preparation.prepare_scans([st.points for st in stations], None, None, viewpoints="origin")
-    visible = edge_graph.free_space_check(prepared.scans, prepared.sensors, prepared.voxel)
+    visible = edge_graph.FreeSpace(prepared.scans, prepared.sensors, prepared.voxel)
     truth = np.linalg.inv(stations[0].pose) @ stations[1].pose
     turn = np.eye(4)
     turn[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)
@@ -165,7 +165,7 @@ def test_a_group_moves_as_one_and_is_not_placed_in_free_space(monkeypatch):
 
     stations = rooms.stations(0)[:3]
     prepared = preparation.prepare_scans([st.points for st in stations], None, None, viewpoints="origin")
-    visible = edge_graph.free_space_check(prepared.scans, prepared.sensors, prepared.voxel)
+    visible = edge_graph.FreeSpace(prepared.scans, prepared.sensors, prepared.voxel)
     truth = [np.linalg.inv(stations[0].pose) @ st.pose for st in stations]
     turn = np.eye(4)
     turn[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)

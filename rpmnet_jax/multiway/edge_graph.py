@@ -57,12 +57,6 @@ class FreeSpace:
         return self.clear(e.source, e.target, e.transform)
 
 
-def free_space_check(scans, sensors, voxel: float) -> FreeSpace:
-    """``visible(edge) -> bool`` (:class:`FreeSpace`): whether the edge keeps each scan out of the other's free
-    space; edges between scans without known sensors pass."""
-    return FreeSpace(scans, sensors, voxel)
-
-
 def doubt_weights(edges) -> list:
     """``[fitness × (1 − p_wrong), ...]``: how the consensus ranks ``edges`` with ``edge_doubt="weigh"``."""
     return [e.fitness * (1.0 - e.p_wrong) for e in edges]

@@ -174,9 +174,9 @@ class _Run:
     @functools.cached_property
     def visible(self):
         """``visible(edge) -> bool``: the free-space check of an edge between scans with known sensors
-        (:func:`~rpmnet_jax.multiway.edge_graph.free_space_check`), its range images made once a run for the pair
+        (:class:`~rpmnet_jax.multiway.edge_graph.FreeSpace`), its range images made once a run for the pair
         edges and the placement alike."""
-        return edge_graph.free_space_check(self.scans, self.prepared.sensors, self.prepared.voxel)
+        return edge_graph.FreeSpace(self.scans, self.prepared.sensors, self.prepared.voxel)
 
     @functools.cached_property
     def conflict_reach(self) -> float:
@@ -278,7 +278,7 @@ def _pair_edges(run: _Run) -> None:
                                                           run.pair_edge, o.edge_doubt == "reject", run.visible)))
 
             found = classical(pairs, "classical edges")
-            if scores is not None and levelled is not None:  # a levelled scene's campaign: weak links
+            if run.scores is not None:  # a levelled scene's campaign: weak links
                 run.weak_bar = edge_graph.weak_bar([e for answers in found.values() for e in answers])
             for r in range(BRIDGING_ROUNDS if scores is not None else 0):  # the groups left apart: next partners
                 kept = [(e.source, e.target) for answers in found.values() for e in answers]
