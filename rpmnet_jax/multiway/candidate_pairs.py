@@ -144,6 +144,26 @@ def bridging_pairs(scores, labels, tried, k: int) -> list:
     return sorted(out)
 
 
+def partners_among(scores, rows, among, tried, k: int) -> list:
+    """Pairs ``[(i, j), ...]``, ``i < j``, sorted, none of ``tried``: each scan of ``rows`` with its ``k``
+    best-scored partners (``scores (S, S)``, made symmetric; ties to the lower index) among the scans where
+    ``among (S,)`` is true. After the pose graph, the unplaced scans' next partners among the placed ones."""
+    scores = 0.5 * (np.asarray(scores, np.float64) + np.asarray(scores, np.float64).T)
+    among = np.asarray(among, bool)
+    out = set()
+    for i in rows:
+        picked = 0
+        for j in np.argsort(-np.where(among, scores[i], -np.inf), kind="stable"):
+            pair = (min(int(i), int(j)), max(int(i), int(j)))
+            if not among[j] or picked == k:
+                break
+            if j == i or pair in tried or pair in out:
+                continue
+            out.add(pair)
+            picked += 1
+    return sorted(out)
+
+
 def best_partners(scores, k: int):
     """``partners(scan) -> [scan, ...]``: its ``k`` best-scored partners by ``scores (S, S)`` (made symmetric),
     best first, ties to the lower index."""

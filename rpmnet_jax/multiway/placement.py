@@ -58,6 +58,42 @@ def unplaced_groups(num_scans: int, pair_edges, poses: np.ndarray, noise: tuple,
     return groups + [Group((int(s),), np.eye(4)[None]) for s in np.flatnonzero(unplaced & ~grouped)]
 
 
+def voted_frame(poses: np.ndarray, group: Group, pair_edges, agree_deg: float, agree_distance: float):
+    """Where the pair edges between ``group``'s members and placed scans (finite in ``poses (S, 4, 4)``) put the
+    group: ``(frame (4, 4): the group's frame → the placed scans', the edges that agree on it)``, the frame that
+    the most distinct members and distinct placed scans agree on (each edge's frame within ``agree_deg`` and, at the
+    members' mean position, ``agree_distance`` of it), at least two of each; None where no two edges agree. One
+    wrong edge puts a group on a look-alike street; two edges from different scans that agree rarely do."""
+    at = {m: k for k, m in enumerate(group.members)}
+    centre = group.poses[:, :3, 3].mean(axis=0)
+    votes = []
+    for e in pair_edges:
+        if e.source in at and np.isfinite(poses[e.target, 0, 0]):
+            m, o, to_placed = e.source, e.target, e.transform
+        elif e.target in at and np.isfinite(poses[e.source, 0, 0]):
+            m, o, to_placed = e.target, e.source, np.linalg.inv(e.transform)
+        else:
+            continue
+        votes.append((m, o, poses[o] @ to_placed @ np.linalg.inv(group.poses[at[m]]), e))
+    best, best_support, need = None, (0, 0.0), (min(2, len(group.members)), 2)
+    for m, o, frame, _ in votes:
+        agree = [v for v in votes if _same_frame(frame, v[2], centre, agree_deg, agree_distance)]
+        members, placed = len({v[0] for v in agree}), len({v[1] for v in agree})
+        support = (min(members, placed), sum(v[3].balanced_fitness for v in agree))
+        if members >= need[0] and placed >= need[1] and support > best_support:
+            best, best_support = (frame, [v[3] for v in agree]), support
+    return best
+
+
+def _same_frame(a: np.ndarray, b: np.ndarray, centre: np.ndarray, max_deg: float, max_distance: float) -> bool:
+    """Whether frames ``a`` and ``b (4, 4)`` differ by at most ``max_deg`` and move ``centre (3,)`` by at most
+    ``max_distance``."""
+    turn = a[:3, :3].T @ b[:3, :3]
+    deg = np.degrees(np.arccos(np.clip((np.trace(turn) - 1.0) / 2.0, -1.0, 1.0)))
+    return bool(deg <= max_deg and np.linalg.norm((a[:3, :3] - b[:3, :3]) @ centre + a[:3, 3] - b[:3, 3])
+                <= max_distance)
+
+
 def merged(scans, poses, placed, voxel: float) -> tuple:
     """``(points (M, 3), normals (M, 3))``: the ``placed`` scans at ``poses``, one cloud downsampled at ``voxel``."""
     points = np.concatenate([se3.apply(poses[s], scans[s].points) for s in placed])

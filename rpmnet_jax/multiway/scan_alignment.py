@@ -40,7 +40,14 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    edge looked (:mod:`rpmnet_jax.multiway.conflicts`): placed scans it puts near one another that stand in each
    other's free space point at suspect edges (every one of a tie); the suspects that are bridges (no cycle confirms
    them: a wrong edge that carried a group of scans onto a look-alike street) are cut, without solving the graph
-   again, up to ``MAX_CUTS`` rounds, and the scans they carried go to step 4;
+   again, up to ``MAX_CUTS`` rounds, and the scans they carried go to step 4. In a levelled scene's campaign the
+   groups left unplaced are then joined across the cuts (step 3c): up to ``BRIDGING_ROUNDS`` rounds, each
+   registering every unplaced scan with its next ``neighbours`` best-scored placed partners, then placing each
+   group where two pair edges from different members to different placed scans agree
+   (:func:`~rpmnet_jax.multiway.placement.voted_frame`: one wrong edge puts a group on a look-alike street, two
+   rarely agree there); the group is checked where it lands as in 3b (its own edges that conflicts point at are cut
+   and the members they carried stay unplaced) and placed where at most ``VOTE_CONFLICTS`` of its members' near
+   pairs still conflict;
 4. global (:mod:`rpmnet_jax.multiway.placement`): the scans outside it, in groups (those the pair edges join among
    themselves, with their own robust pose graph's relative poses, largest first; then single scans), each
    registered onto the merged, placed scans by :func:`rpmnet_jax.align` with ``init="global"`` (rotation
@@ -88,6 +95,11 @@ BRIDGING_ROUNDS = 3  # rounds of classical edges between the groups the candidat
 # A town's stations look alike to the bag of words: 30 stations of site seed 0 had 34 of their 46 true neighbour
 # pairs (< 15 m) among the candidates; the classical edges of all 435 pairs gave 72 passing answers, all right
 # (tuning data: site seed 0)
+AGREE_DEG = 1.0  # step 3c: two pair edges place a group alike when their frames differ by at most this (and the
+# correspondence distance at the group's centre)
+VOTE_CONFLICTS = 0.05  # step 3c: a voted group is placed when at most this share of its members' near pairs still
+# conflict after its cuts (site seed 3, tuning data: a group of 299 stations placed right left 1 of 590, one voted
+# onto a look-alike street 113 of 119)
 MAX_CUTS = 20  # step 3b: rounds of cuts at most (each one check of the conflicts)
 PLACE_PARTNERS = 12  # step 4 in a campaign: a scan registered onto its placed partners among this many best-scored
 # (the footprints' 6 best hold a site station's nearest one for 96%, radon_scores)
@@ -164,6 +176,7 @@ class _Run:
     pending: list = dataclasses.field(default_factory=list)  # scans placement could not place
     likely_wrong: set = dataclasses.field(default_factory=set)
     scores: np.ndarray = None  # (S, S) a levelled scene's campaign's footprint scores (else None)
+    tried: set = dataclasses.field(default_factory=set)  # the pairs registered by the classical edges
     weak_bar: float = 0.0  # a campaign's weak links (edge_graph.WEAK_LINK): 0 where every edge may join scans
     counts: dict = dataclasses.field(default_factory=dict)  # pairs registered per stage
 
@@ -273,11 +286,7 @@ def _pair_edges(run: _Run) -> None:
     if o.classical:
         with clock.stage("classical"):
 
-            def classical(todo, stage):
-                return dict(zip(todo, edge_graph.screened(engine.classical_edges(todo, run.tick(stage)), run.max_dist,
-                                                          run.pair_edge, o.edge_doubt == "reject", run.visible)))
-
-            found = classical(pairs, "classical edges")
+            found = _classical(run, pairs, "classical edges")
             if run.scores is not None:  # a levelled scene's campaign: weak links
                 run.weak_bar = edge_graph.weak_bar([e for answers in found.values() for e in answers])
             for r in range(BRIDGING_ROUNDS if scores is not None else 0):  # the groups left apart: next partners
@@ -286,8 +295,8 @@ def _pair_edges(run: _Run) -> None:
                 more = candidate_pairs.bridging_pairs(scores, labels, found, o.neighbours)
                 if not more:
                     break
-                found.update(classical(more, f"classical edges between groups, round {r + 1}"))
-            run.counts["classical"] = len(found)
+                found.update(_classical(run, more, f"classical edges between groups, round {r + 1}"))
+            run.tried = set(found)
             run.edges = [e for answers in found.values() for e in answers]  # a symmetric pair's answers: the graph
             # chooses
         labels = pose_graph.components(len(run.scans), [(e.source, e.target) for e in run.edges])
@@ -299,6 +308,14 @@ def _pair_edges(run: _Run) -> None:
             run.counts["network"] = len(weak)
 
 
+def _classical(run: _Run, pairs, stage: str) -> dict:
+    """``{pair: [edge, ...]}``: the classical answers of ``pairs`` that pass (:func:`edge_graph.screened`)."""
+    found = edge_graph.screened(run.engine.classical_edges(pairs, run.tick(stage)), run.max_dist, run.pair_edge,
+                                run.options.edge_doubt == "reject", run.visible)
+    run.counts["classical"] = run.counts.get("classical", 0) + len(pairs)
+    return dict(zip(pairs, found))
+
+
 def _pose_graph(run: _Run) -> None:
     """Step 3: the robust pose graph of the pair edges places the largest consistent component."""
     if not run.edges:
@@ -308,25 +325,110 @@ def _pose_graph(run: _Run) -> None:
         run.pair_edges = list(run.edges)
         run.poses, run.edges, run.rejected, anchor = run.solve(run.edges)
         anchor = _cut_conflicts(run, anchor)
+    if run.scores is not None and run.options.classical:
+        _join_across_cuts(run)
+    with run.clock.stage("graph"):
         run.likely_wrong.update(edge_graph.resting_on_doubt(num_scans, run.edges, anchor))
 
 
 def _cut_conflicts(run: _Run, anchor: int) -> int:
-    """Step 3b (:mod:`~rpmnet_jax.multiway.conflicts`): while placed scans with known sensors that the answer puts
-    within reach of each other fail the free-space check and suspect kept edges are bridges (no cycle confirms
-    them), those bridges are cut (:func:`~rpmnet_jax.multiway.edge_graph.cut`: the graph is not solved again) and
-    the scans they carried go to step 4 (at most ``MAX_CUTS`` rounds). Returns the anchor of what stays."""
+    """Step 3b: the placed scans' conflicts cut (:func:`_without_conflicts`); the scans cut off go to step 4.
+    Returns the anchor of what stays."""
+    run.poses, run.edges, dropped = _without_conflicts(run, run.poses, run.edges)
+    run.rejected += dropped
+    return min(run.placed()) if dropped else anchor
+
+
+def _without_conflicts(run: _Run, poses: np.ndarray, edges, among=None) -> tuple:
+    """While scans with known sensors that ``poses (S, 4, 4)`` (NaN: unplaced) put within reach of each other fail
+    the free-space check (:mod:`~rpmnet_jax.multiway.conflicts`) and suspect ``edges`` are bridges (no cycle
+    confirms them), those bridges are cut (:func:`~rpmnet_jax.multiway.edge_graph.cut`: the graph is not solved
+    again, the part with the most scans keeps its poses), at most ``MAX_CUTS`` rounds; with ``among`` (a set of
+    scans), only the pairs with one of them checked. Returns (poses, edges, the edges cut)."""
+    dropped = []
     for _ in range(MAX_CUTS):
-        found = _conflicts(run)
-        suspects = conflicts.suspects(len(run.scans), run.edges, run.ranking(run.edges), found) if found else []
-        bridges = {k for k in suspects if _bridge(len(run.scans), run.edges, k)}
+        found = _conflicts(run, poses, edges, among)
+        suspects = conflicts.suspects(len(run.scans), edges, run.ranking(edges), found) if found else []
+        bridges = {k for k in suspects if _bridge(len(run.scans), edges, k)}
         if not bridges:
             break  # a cycle confirms each suspect: the conflicts are named after the refinement
-        run.poses, run.edges, dropped = edge_graph.cut(len(run.scans), run.poses, run.edges,
-                                                       [k in bridges for k in range(len(run.edges))])
-        run.rejected += dropped
-        anchor = min(run.placed())
-    return anchor
+        poses, edges, cut = edge_graph.cut(len(run.scans), poses, edges, [k in bridges for k in range(len(edges))])
+        dropped += cut
+    return poses, edges, dropped
+
+
+def _join_across_cuts(run: _Run) -> None:
+    """Step 3c, in a levelled scene's campaign: the groups of scans the graph left unplaced joined to the placed
+    ones where two edges from different scans agree (:func:`~rpmnet_jax.multiway.placement.voted_frame`) and no
+    member then stands in a placed scan's free space; up to ``BRIDGING_ROUNDS`` rounds, each first registering the
+    unplaced scans with their next ``neighbours`` best-scored placed partners."""
+    o = run.options
+    for r in range(BRIDGING_ROUNDS):
+        placed = np.isfinite(run.poses[:, 0, 0])
+        if placed.all():
+            return
+        with run.clock.stage("classical"):
+            pairs = candidate_pairs.partners_among(run.scores, np.flatnonzero(~placed), placed, run.tried,
+                                                   o.neighbours)
+            found = _classical(run, pairs, f"classical edges across the cuts, round {r + 1}")
+            run.tried.update(found)
+            run.pair_edges += [e for answers in found.values() for e in answers]
+        with run.clock.stage("graph"):
+            grew = _vote_groups(run)
+        if not pairs and not grew:
+            return
+
+
+def _vote_groups(run: _Run) -> bool:
+    """Places each unplaced group (:func:`~rpmnet_jax.multiway.placement.unplaced_groups`) that the pair edges to
+    placed scans agree on (:func:`~rpmnet_jax.multiway.placement.voted_frame`), again while any is placed. A group
+    is checked where it lands: its edges that the conflicts with its members point at are cut
+    (:func:`_without_conflicts`: a wrong edge inside the group carried some of it onto a look-alike street), the
+    members they carried stay unplaced, and the rest is placed where no conflict is left. Whether any was."""
+    grew, changed = False, True
+    while changed:
+        changed = False
+        for group in _consistent_groups(run):
+            voted = placement.voted_frame(run.poses, group, run.pair_edges, AGREE_DEG, run.max_dist)
+            if voted is None:
+                continue
+            poses = run.poses.copy()
+            poses[list(group.members)] = voted[0] @ group.poses
+            own = {id(e) for e in group.edges}
+            poses, edges, cut = _without_conflicts(run, poses, run.edges + list(group.edges) + voted[1],
+                                                   set(group.members))
+            members = set(group.members)
+            near = _near_pairs(run, poses, edges, members)
+            if (any(id(e) not in own for e in cut)
+                    or len(_conflicts(run, poses, edges, members)) > VOTE_CONFLICTS * len(near)):
+                continue  # the conflicts blame the placed scans' edges or the agreeing ones: no place found
+            run.poses, run.edges = poses, edges
+            run.rejected += cut
+            run.pair_edges = [e for e in run.pair_edges if id(e) not in {id(c) for c in cut}]
+            changed = grew = True
+            break  # the groups change with what was cut and placed
+    return grew
+
+
+def _consistent_groups(run: _Run) -> list:
+    """The unplaced groups (:func:`~rpmnet_jax.multiway.placement.unplaced_groups`), each checked for conflicts in
+    its own poses as the placed scans are (:func:`_without_conflicts`): the pair edges it cuts leave
+    ``run.pair_edges`` for ``run.rejected`` and the groups are formed again."""
+    o = run.options
+    while True:
+        groups = placement.unplaced_groups(len(run.scans), run.pair_edges, run.poses,
+                                           run.noise(NETWORK_NOISE_SCALE), o.seed, o.edge_doubt != "off",
+                                           run.weak_bar)
+        cut = set()
+        for group in groups:
+            if len(group.members) > 2:
+                poses = np.full_like(run.poses, np.nan)
+                poses[list(group.members)] = group.poses
+                cut.update(id(e) for e in _without_conflicts(run, poses, list(group.edges))[2])
+        if not cut:
+            return groups
+        run.rejected += [e for e in run.pair_edges if id(e) in cut]
+        run.pair_edges = [e for e in run.pair_edges if id(e) not in cut]
 
 
 def _bridge(num_scans: int, edges, k: int) -> bool:
@@ -335,15 +437,20 @@ def _bridge(num_scans: int, edges, k: int) -> bool:
     return bool(labels[edges[k].source] != labels[edges[k].target])
 
 
-def _conflicts(run: _Run) -> list:
-    """``[(i, j), ...]``: placed scans with known sensors within :attr:`_Run.conflict_reach` of each other at the
-    current poses, joined by no edge of the current graph, whose implied pair fails the
-    free-space check."""
+def _near_pairs(run: _Run, poses: np.ndarray, edges, among=None) -> list:
+    """``[(i, j), ...]``: the scans with known sensors within :attr:`_Run.conflict_reach` of each other at ``poses``
+    (NaN: unplaced), joined by none of ``edges``; with ``among``, only the pairs with one of those scans."""
+    joined = {(min(e.source, e.target), max(e.source, e.target)) for e in edges}
+    return [(i, j) for i, j in conflicts.near_placed(poses, run.prepared.sensors, run.conflict_reach)
+            if (among is None or i in among or j in among) and (i, j) not in joined]
+
+
+def _conflicts(run: _Run, poses: np.ndarray, edges, among=None) -> list:
+    """The pairs of :func:`_near_pairs` whose implied pair fails the free-space check."""
     if all(v is None for v in run.prepared.sensors):
         return []
-    joined = {(min(e.source, e.target), max(e.source, e.target)) for e in run.edges}
-    return [(i, j) for i, j in conflicts.near_placed(run.poses, run.prepared.sensors, run.conflict_reach)
-            if (i, j) not in joined and not run.visible.clear(i, j, np.linalg.inv(run.poses[j]) @ run.poses[i])]
+    return [(i, j) for i, j in _near_pairs(run, poses, edges, among)
+            if not run.visible.clear(i, j, np.linalg.inv(poses[j]) @ poses[i])]
 
 
 def _place_others(run: _Run) -> None:
@@ -426,7 +533,7 @@ def _name_conflicts(run: _Run) -> None:
     ``likely_wrong`` (timed with the graph)."""
     if any(v is not None for v in run.prepared.sensors) and len(run.placed()) > 1:
         with run.clock.stage("graph"):
-            run.likely_wrong.update(s for pair in _conflicts(run) for s in pair)
+            run.likely_wrong.update(s for pair in _conflicts(run, run.poses, run.edges) for s in pair)
 
 
 def _answer(run: _Run) -> ScanAlignment:

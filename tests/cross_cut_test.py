@@ -1,0 +1,83 @@
+"""Joining groups of scans the pose graph left apart (step 3c): the unplaced scans' next partners among the placed
+ones (``candidate_pairs.partners_among``) and a group's frame where two edges from different scans agree
+(``placement.voted_frame``)."""
+
+import numpy as np
+
+from rpmnet_jax.multiway import candidate_pairs, placement
+from rpmnet_jax.pair_edges.edges import Edge
+
+
+def test_partners_among_only_the_given_scans_and_none_tried():
+    scores = np.array([[9.0, 5.0, 4.0, 3.0, 2.0],
+                       [5.0, 9.0, 1.0, 6.0, 7.0],
+                       [4.0, 1.0, 9.0, 8.0, 0.0],
+                       [3.0, 6.0, 8.0, 9.0, 1.0],
+                       [2.0, 7.0, 0.0, 1.0, 9.0]])
+    among = np.array([True, True, True, False, False])  # 0, 1, 2 placed
+    pairs = candidate_pairs.partners_among(scores, [3, 4], among, {(2, 3)}, 2)
+    assert pairs == [(0, 3), (0, 4), (1, 3), (1, 4)]  # (2, 3) was tried: 3 takes the next, 0
+    assert candidate_pairs.partners_among(scores, [3], among, set(), 1) == [(2, 3)]
+    assert candidate_pairs.partners_among(scores, [3], among, set(), 9) == [(0, 3), (1, 3), (2, 3)]  # only 3 there
+
+
+def _edge(i, j, transform, balanced=0.8):
+    return Edge(i, j, transform, balanced, 0.0, np.eye(6), 0.0, "classical", balanced_fitness=balanced)
+
+
+def _pose(yaw_deg, x, y):
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    out = np.eye(4)
+    out[:2, :2] = [[c, -s], [s, c]]
+    out[:2, 3] = x, y
+    return out
+
+
+def _scene():
+    """Scans 0, 1 placed at their truth; a group of 2 and 3 in its own frame (2 at its origin)."""
+    truth = np.stack([_pose(0, 0, 0), _pose(10, 10, 0), _pose(30, 5, 8), _pose(40, 14, 9)])
+    poses = np.full((4, 4, 4), np.nan)
+    poses[:2] = truth[:2]
+    group = placement.Group((2, 3), np.stack([np.eye(4), np.linalg.inv(truth[2]) @ truth[3]]))
+    return truth, poses, group
+
+
+def _true_edge(truth, i, j, balanced=0.8):
+    return _edge(i, j, np.linalg.inv(truth[j]) @ truth[i], balanced)
+
+
+def test_two_agreeing_edges_from_different_scans_place_a_group():
+    truth, poses, group = _scene()
+    wrong = _edge(2, 0, _pose(180, 50, 0), 0.9)
+    edges = [_true_edge(truth, 2, 0), _true_edge(truth, 1, 3), wrong]  # one each way round
+    frame, agreeing = placement.voted_frame(poses, group, edges, 1.0, 0.5)
+    np.testing.assert_allclose(frame @ group.poses, truth[2:], atol=1e-9)
+    assert [(e.source, e.target) for e in agreeing] == [(2, 0), (1, 3)]
+
+
+def test_one_edge_or_edges_of_one_scan_place_nothing():
+    truth, poses, group = _scene()
+    assert placement.voted_frame(poses, group, [_true_edge(truth, 2, 0)], 1.0, 0.5) is None
+    both_from_2 = [_true_edge(truth, 2, 0), _true_edge(truth, 2, 1)]  # one member: not independent
+    assert placement.voted_frame(poses, group, both_from_2, 1.0, 0.5) is None
+
+
+def test_disagreeing_edges_place_nothing_and_the_best_supported_frame_wins():
+    truth, poses, group = _scene()
+    off = _edge(3, 1, np.linalg.inv(truth[1]) @ _pose(0, 2, 0) @ truth[3])  # 2 m off
+    assert placement.voted_frame(poses, group, [_true_edge(truth, 2, 0), off], 1.0, 0.5) is None
+    # a look-alike pair (2, 1) and (3, 0) agreeing on a wrong frame, with less balanced fitness
+    lie = _pose(90, 100, 0)
+    liars = [_edge(2, 1, np.linalg.inv(truth[1]) @ lie @ truth[2], 0.3),
+             _edge(3, 0, np.linalg.inv(truth[0]) @ lie @ truth[3], 0.3)]
+    frame, _ = placement.voted_frame(poses, group, liars + [_true_edge(truth, 2, 0), _true_edge(truth, 3, 1)],
+                                     1.0, 0.5)
+    np.testing.assert_allclose(frame @ group.poses, truth[2:], atol=1e-9)
+
+
+def test_a_single_scan_needs_two_placed_scans_that_agree():
+    truth, poses, _ = _scene()
+    single = placement.Group((2,), np.eye(4)[None])
+    assert placement.voted_frame(poses, single, [_true_edge(truth, 2, 0)], 1.0, 0.5) is None
+    frame, _ = placement.voted_frame(poses, single, [_true_edge(truth, 2, 0), _true_edge(truth, 2, 1)], 1.0, 0.5)
+    np.testing.assert_allclose(frame, truth[2], atol=1e-9)
