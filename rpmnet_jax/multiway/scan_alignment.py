@@ -359,9 +359,8 @@ def _without_conflicts(run: _Run, poses: np.ndarray, edges, among=None) -> tuple
 
 def _join_across_cuts(run: _Run) -> None:
     """Step 3c, in a levelled scene's campaign: the groups of scans the graph left unplaced joined to the placed
-    ones where two edges from different scans agree (:func:`~rpmnet_jax.multiway.placement.voted_frame`) and no
-    member then stands in a placed scan's free space; up to ``BRIDGING_ROUNDS`` rounds, each first registering the
-    unplaced scans with their next ``neighbours`` best-scored placed partners."""
+    ones where two edges from different scans agree (:func:`_vote_groups`); up to ``BRIDGING_ROUNDS`` rounds, each
+    first registering the unplaced scans with their next ``neighbours`` best-scored placed partners."""
     o = run.options
     for r in range(BRIDGING_ROUNDS):
         placed = np.isfinite(run.poses[:, 0, 0])
@@ -384,7 +383,9 @@ def _vote_groups(run: _Run) -> bool:
     placed scans agree on (:func:`~rpmnet_jax.multiway.placement.voted_frame`), again while any is placed. A group
     is checked where it lands: its edges that the conflicts with its members point at are cut
     (:func:`_without_conflicts`: a wrong edge inside the group carried some of it onto a look-alike street), the
-    members they carried stay unplaced, and the rest is placed where no conflict is left. Whether any was."""
+    members they carried stay unplaced, and the rest is placed where at most ``VOTE_CONFLICTS`` of its members'
+    near pairs still conflict (those left are named after the refinement), never where a cut would fall on a placed
+    scan's edge or an agreeing one. Whether any was."""
     grew, changed = False, True
     while changed:
         changed = False
