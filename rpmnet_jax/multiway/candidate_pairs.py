@@ -128,19 +128,11 @@ def bridging_pairs(scores, labels, tried, k: int) -> list:
     ties to the lower index). Where the best ``k`` of :func:`select_pairs` left the scans in separate groups,
     the next best partners across them."""
     labels = np.asarray(labels)
-    scores = 0.5 * (np.asarray(scores, np.float64) + np.asarray(scores, np.float64).T)
+    scores = _symmetric(scores)
     largest = int(np.argmax(np.bincount(labels)))
     out = set()
     for i in np.flatnonzero(labels != largest):
-        picked = 0
-        for j in np.argsort(-scores[i], kind="stable"):
-            pair = (min(int(i), int(j)), max(int(i), int(j)))
-            if labels[j] == labels[i] or pair in tried or pair in out:
-                continue
-            out.add(pair)
-            picked += 1
-            if picked == k:
-                break
+        _add_partners(out, scores[i], int(i), labels != labels[i], tried, k)
     return sorted(out)
 
 
@@ -148,20 +140,30 @@ def partners_among(scores, rows, among, tried, k: int) -> list:
     """Pairs ``[(i, j), ...]``, ``i < j``, sorted, none of ``tried``: each scan of ``rows`` with its ``k``
     best-scored partners (``scores (S, S)``, made symmetric; ties to the lower index) among the scans where
     ``among (S,)`` is true. After the pose graph, the unplaced scans' next partners among the placed ones."""
-    scores = 0.5 * (np.asarray(scores, np.float64) + np.asarray(scores, np.float64).T)
-    among = np.asarray(among, bool)
+    scores, among = _symmetric(scores), np.asarray(among, bool)
     out = set()
     for i in rows:
-        picked = 0
-        for j in np.argsort(-np.where(among, scores[i], -np.inf), kind="stable"):
-            pair = (min(int(i), int(j)), max(int(i), int(j)))
-            if not among[j] or picked == k:
-                break
-            if j == i or pair in tried or pair in out:
-                continue
-            out.add(pair)
-            picked += 1
+        _add_partners(out, scores[i], int(i), among, tried, k)
     return sorted(out)
+
+
+def _symmetric(scores) -> np.ndarray:
+    scores = np.asarray(scores, np.float64)
+    return 0.5 * (scores + scores.T)
+
+
+def _add_partners(out: set, row: np.ndarray, i: int, allowed: np.ndarray, tried, k: int) -> None:
+    """Adds to ``out`` the pairs of scan ``i`` with its ``k`` best by ``row (S,)`` where ``allowed (S,)``, ties
+    to the lower index, skipping itself and the pairs already in ``tried`` or ``out``."""
+    picked = 0
+    for j in np.argsort(-np.where(allowed, row, -np.inf), kind="stable"):
+        if picked == k or not allowed[j]:
+            return
+        pair = (min(i, int(j)), max(i, int(j)))
+        if j == i or pair in tried or pair in out:
+            continue
+        out.add(pair)
+        picked += 1
 
 
 def best_partners(scores, k: int):

@@ -88,9 +88,7 @@ def voted_frame(poses: np.ndarray, group: Group, pair_edges, agree_deg: float, a
 def _same_frame(a: np.ndarray, b: np.ndarray, centre: np.ndarray, max_deg: float, max_distance: float) -> bool:
     """Whether frames ``a`` and ``b (4, 4)`` differ by at most ``max_deg`` and move ``centre (3,)`` by at most
     ``max_distance``."""
-    turn = a[:3, :3].T @ b[:3, :3]
-    deg = np.degrees(np.arccos(np.clip((np.trace(turn) - 1.0) / 2.0, -1.0, 1.0)))
-    return bool(deg <= max_deg and np.linalg.norm((a[:3, :3] - b[:3, :3]) @ centre + a[:3, 3] - b[:3, 3])
+    return bool(se3.rotation_angle_deg(a[:3, :3].T @ b[:3, :3]) <= max_deg and np.linalg.norm((a[:3, :3] - b[:3, :3]) @ centre + a[:3, 3] - b[:3, 3])
                 <= max_distance)
 
 

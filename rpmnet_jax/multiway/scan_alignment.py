@@ -393,19 +393,18 @@ def _vote_groups(run: _Run) -> bool:
             voted = placement.voted_frame(run.poses, group, run.pair_edges, AGREE_DEG, run.max_dist)
             if voted is None:
                 continue
+            members, own = set(group.members), {id(e) for e in group.edges}
             poses = run.poses.copy()
             poses[list(group.members)] = voted[0] @ group.poses
-            own = {id(e) for e in group.edges}
-            poses, edges, cut = _without_conflicts(run, poses, run.edges + list(group.edges) + voted[1],
-                                                   set(group.members))
-            members = set(group.members)
+            poses, edges, cut = _without_conflicts(run, poses, run.edges + list(group.edges) + voted[1], members)
             near = _near_pairs(run, poses, edges, members)
             if (any(id(e) not in own for e in cut)
                     or len(_conflicts(run, poses, edges, members)) > VOTE_CONFLICTS * len(near)):
                 continue  # the conflicts blame the placed scans' edges or the agreeing ones: no place found
             run.poses, run.edges = poses, edges
             run.rejected += cut
-            run.pair_edges = [e for e in run.pair_edges if id(e) not in {id(c) for c in cut}]
+            cut_ids = {id(e) for e in cut}
+            run.pair_edges = [e for e in run.pair_edges if id(e) not in cut_ids]
             changed = grew = True
             break  # the groups change with what was cut and placed
     return grew
