@@ -156,6 +156,32 @@ def test_a_placement_in_another_scan_s_free_space_is_named(monkeypatch):
         assert pending == [] and np.isfinite(poses[1]).all() and doubtful == named
 
 
+def test_a_campaign_leaves_out_a_scan_whose_only_answers_are_doubtful(monkeypatch):
+    """Step 4 with ``place_doubtful=False`` (a levelled scene's campaign): a room station registered a half turn off
+    (in the placed station's free space), or with an answer ``align`` calls likely wrong, stays pending; the right
+    answer, not doubted, places it, unnamed."""
+    import types
+    from rpmnet_jax.simulation import rooms
+
+    stations = rooms.stations(0)[:2]
+    prepared = preparation.prepare_scans([st.points for st in stations], None, None, viewpoints="origin")
+    visible = edge_graph.FreeSpace(prepared.scans, prepared.sensors, prepared.voxel)
+    truth = np.linalg.inv(stations[0].pose) @ stations[1].pose
+    turn = np.eye(4)
+    turn[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)
+    for answer, doubted, placed in ((truth @ turn, False, False), (truth, True, False), (truth, False, True)):
+        monkeypatch.setattr(placement.alignment, "align", lambda *a, answer=answer, doubted=doubted, **k: types.SimpleNamespace(
+            transform=answer, fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=doubted))
+        poses = np.full((2, 4, 4), np.nan)
+        poses[0] = np.eye(4)
+        poses, edges, pending, doubtful = placement.place_remaining(
+            prepared.scans, poses, [placement.Group((1,), np.eye(4)[None])], None, None, prepared.voxel,
+            sizes.DISTANCE_VOXELS * prepared.voxel, lambda fitness, residual, balanced: True, 0, lambda *_: None,
+            visible=visible, place_doubtful=False)
+        assert doubtful == [] and pending == ([] if placed else [1])
+        assert np.isfinite(poses[1]).all() == placed
+
+
 def test_a_group_moves_as_one_and_is_not_placed_in_free_space(monkeypatch):
     """Step 4 places a group of scans as one: stations 1 and 2 of a room, joined by their edge, placed onto station
     0. The first member registered a half turn off would put the group where station 0 saw through: refused, and

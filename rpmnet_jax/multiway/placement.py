@@ -100,7 +100,7 @@ def merged(scans, poses, placed, voxel: float) -> tuple:
 
 
 def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, seed, tick, visible=None,
-                    partners=None, max_tries=None):
+                    partners=None, max_tries=None, place_doubtful=True):
     """Places the ``groups`` (:class:`Group` s of the scans NaN in ``poses (S, 4, 4)``), in order: each member in
     turn registered onto the merged placed scans until one's answer passes ``accept(fitness, median plane
     residual, balanced fitness)`` and, for a group of several scans, ``visible(edge) -> bool`` (the pair edges'
@@ -111,7 +111,8 @@ def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, 
     ``partners(scan) -> [scan, ...]`` (a levelled campaign's best-scored partners of a scan) a member is registered
     onto its placed partners only, its group's edges measured to those, and every pending group is tried once a
     round from at most ``max_tries`` of its members that have placed partners (local work: no merge of every
-    placed scan, no restart after each placement). Returns (poses, the placed scans' edges to the scans placed
+    placed scan, no restart after each placement). With ``place_doubtful=False`` no answer that fails ``visible`` or
+    is ``likely_wrong`` places a scan (the next member is tried; a group none places stays pending). Returns (poses, the placed scans' edges to the scans placed
     before them that they may overlap (the partners) and their groups' edges, scans still pending, placed scans
     whose ``align`` answer was ``likely_wrong`` or failed ``visible``)."""
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
@@ -134,7 +135,7 @@ def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, 
                 return (*merged(scans, poses, near, voxel), near) if near else None
         for group in list(pending):
             answer = _place_group(scans, poses, group, model_of, params, cfg, max_dist, accept, seed, visible,
-                                  spheres, max_tries)
+                                  spheres, max_tries, place_doubtful)
             if answer is None:
                 continue
             found, seen_through, likely_wrong = answer
@@ -163,7 +164,7 @@ def _may_overlap(spheres, a: int, pose_a, b: int, pose_b, max_dist: float) -> bo
 
 
 def _place_group(scans, poses, group, model_of, params, cfg, max_dist, accept, seed, visible, spheres,
-                 max_tries=None):
+                 max_tries=None, place_doubtful=True):
     """The first member of ``group`` whose registration onto its model places the group (see
     :func:`place_remaining`; ``model_of(scan) -> (points, normals, the placed scans in it)`` or None): ``poses`` of
     its members set, ``(edges to those placed scans it may overlap (``spheres``: each scan's bounding sphere; no
@@ -187,7 +188,7 @@ def _place_group(scans, poses, group, model_of, params, cfg, max_dist, accept, s
         found = [edges_lib.measure(scans, m, o, np.linalg.inv(poses[o]) @ at[m], max_dist, "global")
                  for m in group.members for o in others if _may_overlap(spheres, m, at[m], o, poses[o], max_dist)]
         seen_through = visible is not None and not all(visible(e) for e in found)
-        if seen_through and len(group.members) > 1:
+        if (seen_through and len(group.members) > 1) or (not place_doubtful and (seen_through or a.likely_wrong)):
             continue  # a group lies where its scans could not have been: another member may place it right
         for m in group.members:
             poses[m] = at[m]
