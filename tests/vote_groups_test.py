@@ -74,3 +74,18 @@ def test_a_group_with_one_edge_across_stays_unplaced(street):
     run.pair_edges = run.pair_edges[:-1]  # only 1 → 0 across
     assert not scan_alignment._vote_groups(run)
     assert np.isnan(run.poses[1::2, 0, 0]).all()
+
+
+def test_the_refinement_s_edges_do_not_hide_a_conflict_at_the_final_poses(street):
+    """Step 5b: a scan the answer puts where a placed scan stands, turned round, is named; an edge the refinement
+    measured between the two at those poses does not exempt them (it was never checked), an edge from before the
+    refinement does."""
+    run, truth = street
+    run.poses = truth.copy()
+    run.poses[5] = _turn(truth[4], 180.0)
+    measured = _measure(run, 5, 4, np.linalg.inv(run.poses[4]) @ run.poses[5])  # the refinement's edge
+    for screened, exempt in (([], False), ([measured], True)):
+        run.edges, run.screened, run.likely_wrong = [measured], screened, set()
+        scan_alignment._name_conflicts(run)
+        assert 5 in run.likely_wrong and (4 in run.likely_wrong) != exempt
+        assert not run.likely_wrong & {1, 3}  # at the truth, near 5's true place: no conflict

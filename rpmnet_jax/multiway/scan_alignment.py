@@ -173,6 +173,7 @@ class _Run:
     rejected: list = dataclasses.field(default_factory=list)  # rejected by the pair edges' robust graph
     refine_rejected: list = dataclasses.field(default_factory=list)  # rejected by the final graph or measure
     global_edges: list = dataclasses.field(default_factory=list)  # placement's edges kept
+    screened: list = None  # the graph's edges before the refinement (each passed the free-space check)
     pending: list = dataclasses.field(default_factory=list)  # scans placement could not place
     likely_wrong: set = dataclasses.field(default_factory=set)
     scores: np.ndarray = None  # (S, S) a levelled scene's campaign's footprint scores (else None)
@@ -504,6 +505,7 @@ def _refine(run: _Run) -> None:
     """Step 5: ``refine="icp"`` rounds of ICP edges, each a robust graph; ``"joint"`` all poses together;
     ``"none"`` with placed scans, one graph of the pair and placement edges at the pair edges' noise."""
     o, placed = run.options, run.placed()
+    run.screened = list(run.edges)
     keep = (lambda e: run.good(e, o.min_overlap))
     for r in range(o.refine_rounds if o.refine == "icp" and len(placed) > 1 else 0):
         with run.clock.stage("refine"):
@@ -532,10 +534,12 @@ def _refine(run: _Run) -> None:
 
 def _name_conflicts(run: _Run) -> None:
     """Step 5b: placed scans that the final poses put in one another's free space (:func:`_conflicts`) are named
-    ``likely_wrong`` (timed with the graph)."""
+    ``likely_wrong`` (timed with the graph); only the edges before the refinement exempt a pair (the refinement
+    measures an edge wherever scans overlap at the poses, checked or not)."""
     if any(v is not None for v in run.prepared.sensors) and len(run.placed()) > 1:
         with run.clock.stage("graph"):
-            run.likely_wrong.update(s for pair in _conflicts(run, run.poses, run.edges) for s in pair)
+            edges = run.edges if run.screened is None else run.screened
+            run.likely_wrong.update(s for pair in _conflicts(run, run.poses, edges) for s in pair)
 
 
 def _answer(run: _Run) -> ScanAlignment:
