@@ -42,9 +42,8 @@ def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="au
         raise ValueError(f"got {len(normals)} normal arrays for {len(clouds)} scans")
     cleaned = [cloud.clean_cloud(f"scan {i}", c, n)[:2] for i, (c, n) in enumerate(zip(clouds, normals))]
     seen_from = [None if v is None else v - shift for v in sensors.positions([p for p, _ in cleaned], viewpoints)]
-    cleaned = [(p - shift, n) for p, n in cleaned]
-    voxel, scene = sizes.voxel([p for p, _ in cleaned], seen_from, voxel_size)
-    jobs = [(p, n, sensor, voxel, i, features) for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from))]
+    voxel, scene = sizes.voxel((p - shift for p, _ in cleaned), seen_from, voxel_size)  # one moved copy at a time
+    jobs = [(p, n, sensor, voxel, i, features, shift) for i, ((p, n), sensor) in enumerate(zip(cleaned, seen_from))]
     scans = engine.prepare(prepare_scan, jobs, tick) if engine is not None else [prepare_scan(*job) for job in jobs]
     coarse = [(i, s) for i, s in enumerate(scans) if not isinstance(s, edges_lib.Scan)]
     if coarse:  # here, not in the task: one line naming the first such scan, wherever the tasks ran
@@ -54,13 +53,13 @@ def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="au
 
 
 @threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the compiled loops
-def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bool = True):
-    """Scan ``index`` (cleaned ``points (N, 3)``, ``normals (N, 3)`` or ``None``, its ``sensor (3,)`` or ``None``)
-    voxel-downsampled at ``voxel``, with normals (averaged per voxel, else estimated: facing the sensor, else away
+def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bool = True, shift=None):
+    """Scan ``index`` (cleaned ``points (N, 3)``, moved by ``-shift (3,)`` when given; ``normals (N, 3)`` or
+    ``None``; its ``sensor (3,)`` or ``None``, in the moved frame) voxel-downsampled at ``voxel``, with normals (averaged per voxel, else estimated: facing the sensor, else away
     from the centroid) and, with ``features``, the FPFH of its keypoints (drawn with seed ``index``): an
     :class:`~rpmnet_jax.pair_edges.edges.Scan`, or the number of points left when fewer than
     ``MIN_VOXEL_POINTS``."""
-    p, n = sampling.voxel_downsample(points, normals, voxel)
+    p, n = sampling.voxel_downsample(points if shift is None else points - shift, normals, voxel)
     if len(p) < MIN_VOXEL_POINTS:
         return len(p)
     if n is None:

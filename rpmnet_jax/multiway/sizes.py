@@ -48,13 +48,19 @@ BALANCED_FITNESS = 0.6
 DOMINANT_SHARE = 0.3
 def voxel(clouds, sensors_, given: float | None) -> tuple[float, bool]:
     """``(voxel, scene)``: the caller's ``given`` voxel, else the share of the median robust radius of ``clouds``
-    for objects or, when every known sensor lies inside its scan's box (and one is known), for a scene."""
-    scene = any(s is not None for s in sensors_) and all(
-        sensors_lib.inside(c, s) for c, s in zip(clouds, sensors_) if s is not None)
+    (any iterable, read once: a generator keeps one cloud at a time) for objects or, when every known sensor lies
+    inside its scan's box (and one is known), for a scene."""
+    inside, radii = [], []
+    for c, s in zip(clouds, sensors_):
+        if s is not None:
+            inside.append(sensors_lib.inside(c, s))
+        if given is None:
+            radii.append(cloud.robust_radius(c))
+    scene = bool(inside) and all(inside)
     if given is not None:
         return float(given), scene
     share = SCENE_RELATIVE_VOXEL if scene else OBJECT_RELATIVE_VOXEL
-    return share * float(np.median([cloud.robust_radius(c) for c in clouds])), scene
+    return share * float(np.median(radii)), scene
 
 
 def plane_residual(scene: bool) -> float:
