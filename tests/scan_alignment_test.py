@@ -170,8 +170,9 @@ def test_a_campaign_leaves_out_a_scan_whose_only_answers_are_doubtful(monkeypatc
     turn = np.eye(4)
     turn[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)
     for answer, doubted, placed in ((truth @ turn, False, False), (truth, True, False), (truth, False, True)):
-        monkeypatch.setattr(placement.alignment, "align", lambda *a, answer=answer, doubted=doubted, **k: types.SimpleNamespace(
-            transform=answer, fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=doubted))
+        monkeypatch.setattr(placement.alignment, "align", lambda *a, answer=answer, doubted=doubted, **k:
+                            types.SimpleNamespace(transform=answer, fitness=1.0,
+                                                  correspondences=np.zeros((0, 2), int), likely_wrong=doubted))
         poses = np.full((2, 4, 4), np.nan)
         poses[0] = np.eye(4)
         poses, edges, pending, doubtful = placement.place_remaining(

@@ -111,10 +111,11 @@ def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, 
     ``partners(scan) -> [scan, ...]`` (a levelled campaign's best-scored partners of a scan) a member is registered
     onto its placed partners only, its group's edges measured to those, and every pending group is tried once a
     round from at most ``max_tries`` of its members that have placed partners (local work: no merge of every
-    placed scan, no restart after each placement). With ``place_doubtful=False`` no answer that fails ``visible`` or
-    is ``likely_wrong`` places a scan (the next member is tried; a group none places stays pending). Returns (poses, the placed scans' edges to the scans placed
-    before them that they may overlap (the partners) and their groups' edges, scans still pending, placed scans
-    whose ``align`` answer was ``likely_wrong`` or failed ``visible``)."""
+    placed scan, no restart after each placement). With ``place_doubtful=False`` no answer that fails
+    ``visible`` or is ``likely_wrong`` places a scan (the next member is tried; a group none places stays
+    pending). Returns (poses, the placed scans' edges to the scans placed before them that they may overlap (the
+    partners) and their groups' edges, scans still pending, placed scans whose ``align`` answer was
+    ``likely_wrong`` or failed ``visible``)."""
     placed = [s for s in range(len(scans)) if np.isfinite(poses[s, 0, 0])]
     pending = list(groups)
     edges, doubtful = [], []
@@ -189,7 +190,7 @@ def _place_group(scans, poses, group, model_of, params, cfg, max_dist, accept, s
                  for m in group.members for o in others if _may_overlap(spheres, m, at[m], o, poses[o], max_dist)]
         seen_through = visible is not None and not all(visible(e) for e in found)
         if (seen_through and len(group.members) > 1) or (not place_doubtful and (seen_through or a.likely_wrong)):
-            continue  # a group lies where its scans could not have been: another member may place it right
+            continue  # where its scans could not have been, or doubted: another member may place it right
         for m in group.members:
             poses[m] = at[m]
         return found, seen_through, a.likely_wrong

@@ -55,10 +55,10 @@ def prepare_scans(clouds, normals, voxel_size, shift=np.zeros(3), viewpoints="au
 @threads.compiled_loops()  # on a worker too: BLAS leaves the cores to the compiled loops
 def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bool = True, shift=None):
     """Scan ``index`` (cleaned ``points (N, 3)``, moved by ``-shift (3,)`` when given; ``normals (N, 3)`` or
-    ``None``; its ``sensor (3,)`` or ``None``, in the moved frame) voxel-downsampled at ``voxel``, with normals (averaged per voxel, else estimated: facing the sensor, else away
-    from the centroid) and, with ``features``, the FPFH of its keypoints (drawn with seed ``index``): an
-    :class:`~rpmnet_jax.pair_edges.edges.Scan`, or the number of points left when fewer than
-    ``MIN_VOXEL_POINTS``."""
+    ``None``; its ``sensor (3,)`` or ``None``, in the moved frame) voxel-downsampled at ``voxel``, with normals
+    (averaged per voxel, else estimated: facing the sensor, else away from the centroid) and, with ``features``,
+    the FPFH of its keypoints (drawn with seed ``index``): an :class:`~rpmnet_jax.pair_edges.edges.Scan`, or the
+    number of points left when fewer than ``MIN_VOXEL_POINTS``."""
     p, n = sampling.voxel_downsample(points if shift is None else points - shift, normals, voxel)
     if len(p) < MIN_VOXEL_POINTS:
         return len(p)

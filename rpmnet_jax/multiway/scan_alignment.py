@@ -57,13 +57,14 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    placed when its fitness is at least ``min_fitness``, else left out with a warning (it overlaps nothing); with
    known sensors a group of several is not placed where a member lies in a placed scan's free space, and a single
    scan placed there is reported in ``likely_wrong``, as is a placement ``align`` flags ``likely_wrong``
-   (:mod:`rpmnet_jax.pairwise.doubt`; the robust graph, not the flag, decides which edges stay);
+   (:mod:`rpmnet_jax.pairwise.doubt`; the robust graph, not the flag, decides which edges stay); in a levelled
+   scene's campaign neither answer places a scan (it is left out);
 5. refine (:mod:`rpmnet_jax.multiway.refinement`): every placed pair predicted to overlap by ``min_overlap`` at the current poses takes part:
    ``refine="joint"`` (default) moves all poses together on their points (multi-view point-to-plane,
    :mod:`rpmnet_jax.pose_graphs.joint_refine`), then measures each pair as an edge; ``refine="icp"`` gives each
    an ICP edge from the current poses on up to ``refine_points`` points, and the robust pose graph of those
    edges gives the poses (``refine_rounds`` times); then placed scans that the final poses put in one another's
-   free space, joined by no edge, are reported in ``likely_wrong``.
+   free space, joined by no edge from before the refinement, are reported in ``likely_wrong``.
 
 Edge noise: an edge's covariance is the inverse of its point-to-plane information plus a floor of
 ``edge_sigma_deg`` (rotation) and ``edge_sigma_fraction × max_correspondence_distance`` (translation) per
@@ -173,7 +174,7 @@ class _Run:
     rejected: list = dataclasses.field(default_factory=list)  # rejected by the pair edges' robust graph
     refine_rejected: list = dataclasses.field(default_factory=list)  # rejected by the final graph or measure
     global_edges: list = dataclasses.field(default_factory=list)  # placement's edges kept
-    screened: list = None  # the graph's edges before the refinement (each passed the free-space check)
+    screened: list = None  # the pair and placement edges kept before the refinement (None: not refined yet)
     pending: list = dataclasses.field(default_factory=list)  # scans placement could not place
     likely_wrong: set = dataclasses.field(default_factory=set)
     scores: np.ndarray = None  # (S, S) a levelled scene's campaign's footprint scores (else None)
@@ -530,6 +531,7 @@ def _refine(run: _Run) -> None:
         with run.clock.stage("graph"):
             run.poses, run.edges, run.refine_rejected = edge_graph.solve(
                 len(run.scans), run.edges, min(placed), run.noise(NETWORK_NOISE_SCALE), o.seed)
+            run.screened = list(run.edges)  # the edges this solve kept
 
 
 def _name_conflicts(run: _Run) -> None:
@@ -545,10 +547,11 @@ def _name_conflicts(run: _Run) -> None:
 def _answer(run: _Run) -> ScanAlignment:
     """The poses relative to the first placed scan and the edges, moved back by the shift; what was left out."""
     if run.pending:
-        onto = ("them", "") if run.scores is None else ("their best-scored placed partners",
-                                                        " outside the placed scans' free space, not likely wrong")
-        warnings.warn(f"scans {run.pending} overlap none of the placed scans (no registration onto {onto[0]} reached "
-                      f"fitness {run.options.min_fitness} with coinciding surfaces{onto[1]}); left out",
+        campaign = run.scores is not None
+        onto = "their best-scored placed partners" if campaign else "them"
+        where = " outside the placed scans' free space, not likely wrong" if campaign else ""
+        warnings.warn(f"scans {run.pending} overlap none of the placed scans (no registration onto {onto} reached "
+                      f"fitness {run.options.min_fitness} with coinciding surfaces{where}); left out",
                       LeftOutWarning, stacklevel=3)
     left_out = tuple(s for s in range(len(run.scans)) if s not in run.placed())
     first = min(run.placed())
