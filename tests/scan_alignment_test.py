@@ -133,26 +133,37 @@ def test_a_placement_flagged_likely_wrong_is_reported(monkeypatch):
     assert pending == [] and doubtful == [1] and np.isfinite(poses).all()
 
 
-def test_a_placement_in_another_scan_s_free_space_is_named(monkeypatch):
-    """Step 4 with the free-space check: a room station registered onto the placed one a half turn off (its walls
-    and furniture where the placed station saw through) is placed but named; registered right, it is not named."""
+def _place_second_room_station(monkeypatch, turned: bool, doubted: bool, place_doubtful: bool) -> tuple:
+    """Step 4 with the free-space check on a room's first two stations: station 1 registered onto the placed
+    station 0 at the truth, or a half turn off (``turned``: its walls and furniture where station 0 saw through),
+    with ``align``'s ``likely_wrong`` = ``doubted``. Returns (poses, pending, doubtful)."""
     import types
     from rpmnet_jax.simulation import rooms
 
     stations = rooms.stations(0)[:2]
     prepared = preparation.prepare_scans([st.points for st in stations], None, None, viewpoints="origin")
     visible = edge_graph.FreeSpace(prepared.scans, prepared.sensors, prepared.voxel)
-    truth = np.linalg.inv(stations[0].pose) @ stations[1].pose
-    turn = np.eye(4)
-    turn[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)
-    for answer, named in ((truth @ turn, [1]), (truth, [])):
-        monkeypatch.setattr(placement.alignment, "align", lambda *a, answer=answer, **k: types.SimpleNamespace(
-            transform=answer, fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=False))
-        poses = np.full((2, 4, 4), np.nan)
-        poses[0] = np.eye(4)
-        poses, edges, pending, doubtful = placement.place_remaining(
-            prepared.scans, poses, [placement.Group((1,), np.eye(4)[None])], None, None, prepared.voxel, sizes.DISTANCE_VOXELS * prepared.voxel,
-            lambda fitness, residual, balanced: True, 0, lambda *_: None, visible=visible)
+    answer = np.linalg.inv(stations[0].pose) @ stations[1].pose
+    if turned:
+        turn = np.eye(4)
+        turn[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)
+        answer = answer @ turn
+    monkeypatch.setattr(placement.alignment, "align", lambda *a, **k: types.SimpleNamespace(
+        transform=answer, fitness=1.0, correspondences=np.zeros((0, 2), int), likely_wrong=doubted))
+    poses = np.full((2, 4, 4), np.nan)
+    poses[0] = np.eye(4)
+    poses, _, pending, doubtful = placement.place_remaining(
+        prepared.scans, poses, [placement.Group((1,), np.eye(4)[None])], None, None, prepared.voxel,
+        sizes.DISTANCE_VOXELS * prepared.voxel, lambda fitness, residual, balanced: True, 0, lambda *_: None,
+        visible=visible, place_doubtful=place_doubtful)
+    return poses, pending, doubtful
+
+
+def test_a_placement_in_another_scan_s_free_space_is_named(monkeypatch):
+    """Step 4 with the free-space check: a room station registered onto the placed one a half turn off is placed
+    but named; registered right, it is not named."""
+    for turned, named in ((True, [1]), (False, [])):
+        poses, pending, doubtful = _place_second_room_station(monkeypatch, turned, False, True)
         assert pending == [] and np.isfinite(poses[1]).all() and doubtful == named
 
 
@@ -160,25 +171,8 @@ def test_a_campaign_leaves_out_a_scan_whose_only_answers_are_doubtful(monkeypatc
     """Step 4 with ``place_doubtful=False`` (a levelled scene's campaign): a room station registered a half turn off
     (in the placed station's free space), or with an answer ``align`` calls likely wrong, stays pending; the right
     answer, not doubted, places it, unnamed."""
-    import types
-    from rpmnet_jax.simulation import rooms
-
-    stations = rooms.stations(0)[:2]
-    prepared = preparation.prepare_scans([st.points for st in stations], None, None, viewpoints="origin")
-    visible = edge_graph.FreeSpace(prepared.scans, prepared.sensors, prepared.voxel)
-    truth = np.linalg.inv(stations[0].pose) @ stations[1].pose
-    turn = np.eye(4)
-    turn[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)
-    for answer, doubted, placed in ((truth @ turn, False, False), (truth, True, False), (truth, False, True)):
-        monkeypatch.setattr(placement.alignment, "align", lambda *a, answer=answer, doubted=doubted, **k:
-                            types.SimpleNamespace(transform=answer, fitness=1.0,
-                                                  correspondences=np.zeros((0, 2), int), likely_wrong=doubted))
-        poses = np.full((2, 4, 4), np.nan)
-        poses[0] = np.eye(4)
-        poses, edges, pending, doubtful = placement.place_remaining(
-            prepared.scans, poses, [placement.Group((1,), np.eye(4)[None])], None, None, prepared.voxel,
-            sizes.DISTANCE_VOXELS * prepared.voxel, lambda fitness, residual, balanced: True, 0, lambda *_: None,
-            visible=visible, place_doubtful=False)
+    for turned, doubted, placed in ((True, False, False), (False, True, False), (False, False, True)):
+        poses, pending, doubtful = _place_second_room_station(monkeypatch, turned, doubted, False)
         assert doubtful == [] and pending == ([] if placed else [1])
         assert np.isfinite(poses[1]).all() == placed
 
