@@ -88,8 +88,8 @@ def voted_frame(poses: np.ndarray, group: Group, pair_edges, agree_deg: float, a
 def _same_frame(a: np.ndarray, b: np.ndarray, centre: np.ndarray, max_deg: float, max_distance: float) -> bool:
     """Whether frames ``a`` and ``b (4, 4)`` differ by at most ``max_deg`` and move ``centre (3,)`` by at most
     ``max_distance``."""
-    return bool(se3.rotation_angle_deg(a[:3, :3].T @ b[:3, :3]) <= max_deg and np.linalg.norm((a[:3, :3] - b[:3, :3]) @ centre + a[:3, 3] - b[:3, 3])
-                <= max_distance)
+    moved = np.linalg.norm((a[:3, :3] - b[:3, :3]) @ centre + a[:3, 3] - b[:3, 3])
+    return bool(se3.rotation_angle_deg(a[:3, :3].T @ b[:3, :3]) <= max_deg and moved <= max_distance)
 
 
 def merged(scans, poses, placed, voxel: float) -> tuple:
