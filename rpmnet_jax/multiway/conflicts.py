@@ -8,7 +8,7 @@ edges the most conflicts' paths cross in the maximum spanning tree of the kept e
 Measured on 300 stations of the simulated site (seed 2, tuning data): the graph placed a group of 12 stations 90°
 and about 200 m off on one wrong edge. Of the placed pairs with sensors within 20 m, the 729 right ones put at most
 1.1% of their points in the other's free space; the 39 between that group and the scans it was laid over, 1.7% to
-far above the 4% bound, median 5.7%.
+far above the bound of then, 4%, median 5.7%.
 """
 
 from __future__ import annotations
