@@ -142,7 +142,7 @@ def _place_second_room_station(monkeypatch, turned: bool, doubted: bool, place_d
 
     stations = rooms.stations(0)[:2]
     prepared = preparation.prepare_scans([st.points for st in stations], None, None, viewpoints="origin")
-    visible = edge_graph.FreeSpace(prepared.scans, prepared.sensors, prepared.voxel)
+    visible = edge_graph.FreeSpace([s.points for s in prepared.scans], prepared.sensors, prepared.voxel)
     answer = np.linalg.inv(stations[0].pose) @ stations[1].pose
     if turned:
         turn = np.eye(4)
@@ -186,7 +186,7 @@ def test_a_group_moves_as_one_and_is_not_placed_in_free_space(monkeypatch):
 
     stations = rooms.stations(0)[:3]
     prepared = preparation.prepare_scans([st.points for st in stations], None, None, viewpoints="origin")
-    visible = edge_graph.FreeSpace(prepared.scans, prepared.sensors, prepared.voxel)
+    visible = edge_graph.FreeSpace([s.points for s in prepared.scans], prepared.sensors, prepared.voxel)
     truth = [np.linalg.inv(stations[0].pose) @ st.pose for st in stations]
     turn = np.eye(4)
     turn[:3, :3] = rotation_about([0.0, 0.0, 1.0], 180.0)

@@ -30,7 +30,8 @@ def test_the_right_answer_keeps_out_of_free_space_and_the_half_turn_does_not():
 def test_a_range_image_keeps_the_nearest_hit_per_direction():
     points = np.array([[2.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, 3.0, 0.0]])
     image = visibility.range_image(points, np.zeros(3))
-    assert np.isfinite(image.ranges).sum() == 2 and sorted(image.ranges[np.isfinite(image.ranges)]) == [2.0, 3.0]
+    seen = np.isfinite(image.free)  # -inf where the bin saw nothing, though a neighbour did
+    assert seen.sum() == 2 and sorted(image.free[seen]) == [2.0, 3.0] and (image.free[~seen] == -np.inf).all()
     assert visibility.free_space_share(np.array([[1.0, 0.0, 0.0]]), image, 0.5) == 1.0  # in front of the wall
     assert visibility.free_space_share(np.array([[2.2, 0.0, 0.0]]), image, 0.5) == 0.0  # on it, within the margin
     assert visibility.free_space_share(np.array([[0.0, 0.0, 4.0]]), image, 0.5) == 0.0  # a direction never seen

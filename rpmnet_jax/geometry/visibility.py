@@ -41,8 +41,9 @@ def margin(cell: float) -> float:
 
 class RangeImage(NamedTuple):
     sensor: np.ndarray  # (3,) in the scan's (shifted) frame
-    ranges: np.ndarray  # (A·E,) nearest range per direction bin, inf where nothing was hit
-    free: np.ndarray  # (A·E,) the nearest range of each bin and its 8 neighbours: free space is nearer than this
+    free: np.ndarray  # (A·E,) float32: free space is nearer than this (the nearest range of the bin and its 8
+    # neighbours); -inf where the bin saw nothing. One 4-byte array, 0.26 MB a scan (two 8-byte ones before: 1 GB
+    # on a site's 1,000 stations); the float32 rounding (< 1e-5 m at 100 m) lies far inside the margin
 
 
 def _bins(points: np.ndarray, sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -66,8 +67,8 @@ def range_image(points: np.ndarray, sensor: np.ndarray) -> RangeImage:
     grid = ranges.reshape(na, ne)
     padded = np.pad(grid, ((0, 0), (1, 1)), constant_values=np.inf)  # elevation ends; azimuth wraps round
     free = np.min([np.roll(padded, da, axis=0)[:, 1 + de:1 + de + ne] for da in (-1, 0, 1) for de in (-1, 0, 1)],
-                  axis=0)
-    return RangeImage(sensor, ranges, free.ravel())
+                  axis=0).ravel()
+    return RangeImage(sensor, np.where(np.isfinite(ranges), free, -np.inf).astype(np.float32))
 
 
 def free_space_share(moved: np.ndarray, image: RangeImage, margin: float) -> float:
@@ -75,9 +76,9 @@ def free_space_share(moved: np.ndarray, image: RangeImage, margin: float) -> flo
     its sensor than the nearest range of the bin and its neighbours (``RangeImage.free``) by more than
     ``margin``."""
     bins, r = _bins(moved, image.sensor)
-    seen = np.isfinite(image.ranges[bins])
-    inside = seen & (r < image.free[bins] - margin)
-    return float(inside.sum()) / max(int(seen.sum()), 1)
+    free = image.free[bins].astype(np.float64)
+    inside = r < free - margin  # never where the bin saw nothing (-inf)
+    return float(inside.sum()) / max(int(np.count_nonzero(free > -np.inf)), 1)
 
 
 def violation(src_points: np.ndarray, src_image: RangeImage, ref_points: np.ndarray, ref_image: RangeImage,

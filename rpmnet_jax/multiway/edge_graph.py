@@ -34,24 +34,24 @@ def screened(answers_per_pair, max_dist: float, good, reject: bool, visible=None
 
 class FreeSpace:
     """``free_space(edge) -> bool``: whether the edge keeps each scan out of the other's free space
-    (:mod:`rpmnet_jax.geometry.visibility`, on the scans' grid of ``voxel``), each scan's range image made once;
-    ``free_space.clear(i, j, transform)`` the same for any transform of scan ``i`` into scan ``j``'s frame. Scans
-    without known sensors pass."""
+    (:mod:`rpmnet_jax.geometry.visibility`, on the scans' grid of ``voxel``: ``points[k] (V_k, 3)``, the only part
+    of a scan it keeps), each scan's range image made once; ``free_space.clear(i, j, transform)`` the same for any
+    transform of scan ``i`` into scan ``j``'s frame. Scans without known sensors pass."""
 
-    def __init__(self, scans, sensors, voxel: float):
-        self.scans, self.sensors, self.margin = scans, sensors, visibility.margin(voxel)
+    def __init__(self, points, sensors, voxel: float):
+        self.points, self.sensors, self.margin = list(points), sensors, visibility.margin(voxel)
         self.images = {}
 
     def image(self, k: int):
         if k not in self.images:
-            self.images[k] = visibility.range_image(self.scans[k].points, self.sensors[k])
+            self.images[k] = visibility.range_image(self.points[k], self.sensors[k])
         return self.images[k]
 
     def clear(self, i: int, j: int, transform: np.ndarray) -> bool:
         if self.sensors[i] is None or self.sensors[j] is None:
             return True
-        return visibility.violation(self.scans[i].points, self.image(i), self.scans[j].points, self.image(j),
-                                    transform, self.margin) <= visibility.MAX_FREE_SPACE_SHARE
+        return visibility.violation(self.points[i], self.image(i), self.points[j], self.image(j), transform,
+                                    self.margin) <= visibility.MAX_FREE_SPACE_SHARE
 
     def __call__(self, e) -> bool:
         return self.clear(e.source, e.target, e.transform)

@@ -181,17 +181,13 @@ class _Run:
     tried: set = dataclasses.field(default_factory=set)  # the pairs registered by the classical edges
     weak_bar: float = 0.0  # a campaign's weak links (edge_graph.WEAK_LINK): 0 where every edge may join scans
     counts: dict = dataclasses.field(default_factory=dict)  # pairs registered per stage
+    # visible(edge) -> bool: the free-space check of an edge between scans with known sensors (edge_graph.FreeSpace),
+    # on the registration's scans' points, its range images made once a run for the pair edges and the placement
+    visible: edge_graph.FreeSpace = None
 
     @property
     def scans(self) -> list:
         return self.prepared.scans
-
-    @functools.cached_property
-    def visible(self):
-        """``visible(edge) -> bool``: the free-space check of an edge between scans with known sensors
-        (:class:`~rpmnet_jax.multiway.edge_graph.FreeSpace`), its range images made once a run for the pair
-        edges and the placement alike."""
-        return edge_graph.FreeSpace(self.scans, self.prepared.sensors, self.prepared.voxel)
 
     @functools.cached_property
     def conflict_reach(self) -> float:
@@ -265,7 +261,8 @@ def _prepare(engine, clouds, normals, viewpoints, o, params, checkpoint, cfg, pr
     poses = np.full((len(prepared.scans), 4, 4), np.nan)
     poses[0] = np.eye(4)
     return _Run(o, engine, clock, progress, shift, prepared, max_dist, plane_bar, balance_bar, params, cfg,
-                (clouds, normals, viewpoints), poses)
+                (clouds, normals, viewpoints), poses,
+                visible=edge_graph.FreeSpace((s.points for s in prepared.scans), prepared.sensors, prepared.voxel))
 
 
 def _grounded(prepared: preparation.Prepared) -> bool:
@@ -488,15 +485,18 @@ def _place_others(run: _Run) -> None:
 def _finer_scans(run: _Run) -> None:
     """Before step 5, with ``refine_voxel_size`` and a refinement (not ``refine="none"``): the scans prepared again
     at that voxel (no features), the correspondence distance scaled with it, the engine bound to them; the
-    refinement and the answer's edges use them."""
+    refinement and the answer's edges use them. The coarse scans are let go first (the free-space check keeps
+    their points): a site's stations never hold both sets of normals, trees and features."""
     o = run.options
     if o.refine_voxel_size is None or o.refine == "none" or len(run.placed()) < 2:
         return
     with run.clock.stage("refine"):
         clouds, normals, viewpoints = run.inputs
+        run.engine.release()
+        coarse_voxel, run.prepared = run.prepared.voxel, run.prepared._replace(scans=None)
         fine = preparation.prepare_scans(clouds, normals, o.refine_voxel_size, run.shift, viewpoints, run.engine,
                                          run.tick("preparing scans for the refinement"), features=False)
-        run.max_dist *= fine.voxel / run.prepared.voxel
+        run.max_dist *= fine.voxel / coarse_voxel
         run.prepared = fine
         run.engine.bind(fine.scans, run.params, run.cfg, run.engine.settings._replace(
             max_distance=run.max_dist, ransac_distance=sizes.RANSAC_VOXELS * fine.voxel))

@@ -256,6 +256,10 @@ class PairEngine:
         if self.client is not None and scans is not self._prepared:  # scans prepared here are there already
             self._scan_futures = self._send(list(scans))
 
+    def release(self) -> None:
+        """Lets the bound scans go, here and on the cluster, until the next :meth:`bind`."""
+        self.scans = self._scan_futures = self._prepared = None
+
     def prepare(self, fn, jobs, tick=None) -> list:
         """``[fn(*job) for job in jobs]``: the scans (:class:`~rpmnet_jax.pair_edges.edges.Scan`) made ready for
         pairing, one task a scan; ``tick(done, total)`` as they finish. On a cluster each stays on its worker for
