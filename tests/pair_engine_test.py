@@ -188,6 +188,20 @@ def test_a_dask_scheduler_with_two_workers_gives_the_in_process_poses(dask_clust
     assert ticks[-1] == (stage, 10, 10) and len(ticks) >= 2
 
 
+@pytest.mark.slow  # the scans prepared twice on the workers
+def test_the_refinement_at_a_finer_voxel_on_two_workers_gives_the_in_process_poses(dask_cluster, in_process,
+                                                                                    random_weights):
+    """With ``refine_voxel_size`` the engine lets the coarse scans go (here and on the workers) and prepares the
+    finer ones as tasks: the same poses as in process, refined at that voxel."""
+    address, _ = dask_cluster
+    clouds, coarse = in_process[0], in_process[1][True]
+    options = dataclasses.replace(OPTIONS, refine_voxel_size=coarse.voxel_size / 2)
+    expected = rpmnet_jax.align_scans(clouds, options=options, checkpoint=random_weights)
+    result = rpmnet_jax.align_scans(clouds, options=options, checkpoint=random_weights, scheduler=address)
+    assert result.voxel_size == expected.voxel_size == coarse.voxel_size / 2
+    _close(result.poses, expected.poses)
+
+
 @pytest.mark.slow
 def test_a_worker_killed_mid_run_still_gives_the_same_poses(dask_cluster, in_process, random_weights):
     import distributed

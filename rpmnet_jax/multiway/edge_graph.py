@@ -39,7 +39,8 @@ class FreeSpace:
     transform of scan ``i`` into scan ``j``'s frame. Scans without known sensors pass."""
 
     def __init__(self, points, sensors, voxel: float):
-        self.points, self.sensors, self.margin = list(points), sensors, visibility.margin(voxel)
+        self.sensors, self.margin = sensors, visibility.margin(voxel)
+        self.points = [p if v is not None else None for p, v in zip(points, sensors)]  # only what is checked
         self.images = {}
 
     def image(self, k: int):

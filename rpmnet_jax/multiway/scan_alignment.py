@@ -182,7 +182,8 @@ class _Run:
     weak_bar: float = 0.0  # a campaign's weak links (edge_graph.WEAK_LINK): 0 where every edge may join scans
     counts: dict = dataclasses.field(default_factory=dict)  # pairs registered per stage
     # visible(edge) -> bool: the free-space check of an edge between scans with known sensors (edge_graph.FreeSpace),
-    # on the registration's scans' points, its range images made once a run for the pair edges and the placement
+    # on the registration's scans' points, its range images made once a run for the pair edges, the placement and
+    # the conflicts (steps 3b and 5b)
     visible: edge_graph.FreeSpace = None
 
     @property

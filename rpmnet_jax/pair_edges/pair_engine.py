@@ -258,7 +258,7 @@ class PairEngine:
 
     def release(self) -> None:
         """Lets the bound scans go, here and on the cluster, until the next :meth:`bind`."""
-        self.scans = self._scan_futures = self._prepared = None
+        self.scans = self._scan_futures = self._prepared = self._digests = None
 
     def prepare(self, fn, jobs, tick=None) -> list:
         """``[fn(*job) for job in jobs]``: the scans (:class:`~rpmnet_jax.pair_edges.edges.Scan`) made ready for
