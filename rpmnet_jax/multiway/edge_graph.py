@@ -36,7 +36,8 @@ class FreeSpace:
     """``free_space(edge) -> bool``: whether the edge keeps each scan out of the other's free space
     (:mod:`rpmnet_jax.geometry.visibility`, on the scans' grid of ``voxel``: ``points[k] (V_k, 3)``, the only part
     of a scan it keeps), each scan's range image made once; ``free_space.clear(i, j, transform)`` the same for any
-    transform of scan ``i`` into scan ``j``'s frame. Scans without known sensors pass."""
+    transform of scan ``i`` into scan ``j``'s frame, at ``bar`` (default ``visibility.MAX_FREE_SPACE_SHARE``, an
+    answer's). Scans without known sensors pass."""
 
     def __init__(self, points, sensors, voxel: float):
         self.sensors, self.margin = sensors, visibility.margin(voxel)
@@ -48,11 +49,12 @@ class FreeSpace:
             self.images[k] = visibility.range_image(self.points[k], self.sensors[k])
         return self.images[k]
 
-    def clear(self, i: int, j: int, transform: np.ndarray) -> bool:
+    def clear(self, i: int, j: int, transform: np.ndarray, bar: float | None = None) -> bool:
         if self.sensors[i] is None or self.sensors[j] is None:
             return True
+        bar = visibility.MAX_FREE_SPACE_SHARE if bar is None else bar
         return visibility.violation(self.points[i], self.image(i), self.points[j], self.image(j), transform,
-                                    self.margin) <= visibility.MAX_FREE_SPACE_SHARE
+                                    self.margin) <= bar
 
     def __call__(self, e) -> bool:
         return self.clear(e.source, e.target, e.transform)

@@ -446,11 +446,12 @@ def _near_pairs(run: _Run, poses: np.ndarray, edges, among=None) -> list:
 
 
 def _conflicts(run: _Run, poses: np.ndarray, edges, among=None) -> list:
-    """The pairs of :func:`_near_pairs` whose implied pair fails the free-space check."""
+    """The pairs of :func:`_near_pairs` whose implied pair fails the free-space check (at the bar of poses composed
+    through the graph, ``conflicts.MAX_SHARE``)."""
     if all(v is None for v in run.prepared.sensors):
         return []
     return [(i, j) for i, j in _near_pairs(run, poses, edges, among)
-            if not run.visible.clear(i, j, np.linalg.inv(poses[j]) @ poses[i])]
+            if not run.visible.clear(i, j, np.linalg.inv(poses[j]) @ poses[i], conflicts.MAX_SHARE)]
 
 
 def _place_others(run: _Run) -> None:
