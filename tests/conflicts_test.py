@@ -47,3 +47,36 @@ def test_no_conflict_joined_gives_none():
     assert conflicts.suspects(5, kept, [1.0, 1.0], []) == []
     assert conflicts.suspects(5, kept, [1.0, 1.0], [(0, 2)]) == []  # different trees of the forest
     assert conflicts.suspects(5, kept, [1.0, 1.0], [(0, 4)]) == []  # scan 4 has no edge
+
+
+def test_a_conflict_is_judged_at_the_bar_of_composed_poses_not_at_an_answers():
+    """A room station slid from its true place along the other's x axis: once more than 1.5% of it lies in the other's
+    free space the slide is no edge (one registration's answer, ``visibility.MAX_FREE_SPACE_SHARE``), but only past
+    ``conflicts.MAX_SHARE`` (4%) is it a conflict of placed scans (poses composed through the graph carry a group's
+    drift)."""
+    from types import SimpleNamespace
+
+    from rpmnet_jax.geometry import sampling, visibility
+    from rpmnet_jax.multiway import edge_graph, scan_alignment
+    from rpmnet_jax.simulation import rooms
+
+    voxel = 0.05
+    a, b = rooms.stations(0)[:2]
+    points = [sampling.voxel_downsample(s.points, None, voxel)[0] for s in (a, b)]
+    free = edge_graph.FreeSpace(points, [np.zeros(3), np.zeros(3)], voxel)
+    run = SimpleNamespace(prepared=SimpleNamespace(sensors=free.sensors), conflict_reach=20.0, visible=free)
+    found = {}
+    for d in np.arange(0.0, 4.0, 0.01):
+        slid = _at((d, 0.0, 0.0))[0] @ np.linalg.inv(b.pose) @ a.pose  # a's frame → b's, slid by d
+        share = visibility.violation(points[0], free.image(0), points[1], free.image(1), slid, free.margin)
+        kind = ("between" if visibility.MAX_FREE_SPACE_SHARE < share <= conflicts.MAX_SHARE
+                else "beyond" if share > conflicts.MAX_SHARE else None)
+        found.setdefault(kind, slid)
+        if "beyond" in found:
+            break
+    assert "between" in found and "beyond" in found, found.keys()
+    poses = np.stack([found["between"], np.eye(4)])  # scan 0 placed at the slide, scan 1 the frame
+    assert not free(SimpleNamespace(source=0, target=1, transform=found["between"]))  # no edge
+    assert scan_alignment._conflicts(run, poses, []) == []  # no conflict
+    poses[0] = found["beyond"]
+    assert scan_alignment._conflicts(run, poses, []) == [(0, 1)]

@@ -38,7 +38,8 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    path to the anchor crosses a kept classical edge with ``p_wrong`` ≥ the model's ``threshold`` (0.5: more likely
    wrong than right) are reported in ``likely_wrong``. With known sensors the answer is then checked where no
    edge looked (:mod:`rpmnet_jax.multiway.conflicts`): placed scans it puts near one another that stand in each
-   other's free space point at suspect edges (every one of a tie); the suspects that are bridges (no cycle confirms
+   other's free space (at ``conflicts.MAX_SHARE``, the bar of poses composed through the graph: a group carries
+   its drift) point at suspect edges (every one of a tie); the suspects that are bridges (no cycle confirms
    them: a wrong edge that carried a group of scans onto a look-alike street) are cut, without solving the graph
    again, up to ``MAX_CUTS`` rounds, and the scans they carried go to step 4. In a levelled scene's campaign the
    groups left unplaced are then joined across the cuts (step 3c): up to ``BRIDGING_ROUNDS`` rounds, each
