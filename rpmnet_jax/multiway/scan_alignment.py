@@ -184,7 +184,7 @@ class _Run:
     counts: dict = dataclasses.field(default_factory=dict)  # pairs registered per stage
     # visible(edge) -> bool: the free-space check of an edge between scans with known sensors (edge_graph.FreeSpace),
     # on the registration's scans' points, its range images made once a run for the pair edges, the placement and
-    # the conflicts (steps 3b and 5b)
+    # the conflicts (steps 3b, 3c and 5b, at conflicts.MAX_SHARE)
     visible: edge_graph.FreeSpace = None
 
     @property
@@ -487,8 +487,9 @@ def _place_others(run: _Run) -> None:
 
 def _finer_scans(run: _Run) -> None:
     """Before step 5, with ``refine_voxel_size`` and a refinement (not ``refine="none"``): the refinement first at
-    the registration's voxel (:func:`_refine`), then the scans prepared again at that voxel (no features), the correspondence distance scaled with it, the engine bound to them; the
-    refinement and the answer's edges use them. The coarse scans are let go first (the free-space check keeps
+    the registration's voxel (:func:`_refine`), then the scans prepared again at that voxel (no features), the
+    correspondence distance scaled with it, the engine bound to them; the refinement and the answer's edges use
+    them. The coarse scans are let go first (the free-space check keeps
     their points): a site's stations never hold both sets of normals, trees and features."""
     o = run.options
     if o.refine_voxel_size is None or o.refine == "none" or len(run.placed()) < 2:
