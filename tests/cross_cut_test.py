@@ -1,6 +1,6 @@
 """Joining groups of scans the pose graph left apart (step 3c): the unplaced scans' next partners among the placed
-ones (``candidate_pairs.partners_among``) and a group's frame where two edges from different scans agree
-(``placement.voted_frame``)."""
+ones (``candidate_pairs.partners_among``), a group's ends (``placement.group_ends``) and a group's frame where two
+edges from different scans agree (``placement.voted_frame``)."""
 
 import numpy as np
 
@@ -19,6 +19,17 @@ def test_partners_among_only_the_given_scans_and_none_tried():
     assert pairs == [(0, 3), (0, 4), (1, 3), (1, 4)]  # (2, 3) was tried: 3 takes the next, 0
     assert candidate_pairs.partners_among(scores, [3], among, set(), 1) == [(2, 3)]
     assert candidate_pairs.partners_among(scores, [3], among, set(), 9) == [(0, 3), (1, 3), (2, 3)]  # only 3 there
+
+
+def test_a_streets_group_ends_at_its_first_and_last_station_and_a_corner():
+    sensors = {m: np.array([0.0, 0.0, 1.5]) for m in range(16)}  # each scan's sensor in its own coordinates
+    street = placement.Group(tuple(range(10, 16)), np.stack([_pose(17.0 * k, 10.0 * k, 0) for k in range(6)]))
+    assert placement.group_ends(street, sensors, 15.0) == [10, 15]  # each station turned its own way
+    corner = placement.Group((0, 1, 2, 3, 4), np.stack([_pose(0, x, y) for x, y in
+                                                        [(0, 0), (10, 0), (20, 0), (20, 10), (20, 20)]]))
+    assert placement.group_ends(corner, sensors, 15.0) == [0, 2, 4]  # the corner sees an open arm
+    assert placement.group_ends(corner, sensors, 9.0) == [0, 1, 2, 3, 4]  # none within reach of another: each an end
+    assert placement.group_ends(placement.Group((7,), np.eye(4)[None]), sensors, 15.0) == [7]
 
 
 def _edge(i, j, transform, balanced=0.8):

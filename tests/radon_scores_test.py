@@ -80,3 +80,49 @@ def test_bad_input_is_refused(site):
         radon_scores.overlap_scores(prepared.scans[:1], prepared.sensors[:1], prepared.voxel)
     with pytest.raises(ValueError, match="sensor"):
         radon_scores.overlap_scores(prepared.scans[:2], [None, np.zeros(3)], prepared.voxel)
+
+
+def _town(seed, size=50.0):
+    """Points and normals of a flat ground (z = -1.6) and 12 box-shaped buildings' walls around the origin."""
+    rng = np.random.default_rng(seed)
+    ground = np.column_stack([rng.uniform(-size, size, (20000, 2)), np.full(20000, -1.6)])
+    points, normals = [ground], [np.tile([0.0, 0.0, 1.0], (20000, 1))]
+    for _ in range(12):
+        (x0, y0), (w, d) = rng.uniform(-size, size - 15.0, 2), rng.uniform(4.0, 15.0, 2)
+        for start, along, normal in (((x0, y0), (w, 0), (0, -1)), ((x0, y0 + d), (w, 0), (0, 1)),
+                                     ((x0, y0), (0, d), (-1, 0)), ((x0 + w, y0), (0, d), (1, 0))):
+            t, z = rng.uniform(0, 1, 600), rng.uniform(-1.6, 6.0, 600)
+            points.append(np.column_stack([start[0] + t * along[0], start[1] + t * along[1], z]))
+            normals.append(np.tile([normal[0], normal[1], 0.0], (600, 1)))
+    return np.concatenate(points), np.concatenate(normals)
+
+
+def _seen_from(town, x, y, degrees):
+    """The town's points within 45 m of a sensor at (x, y), in that sensor's frame turned by ``degrees``."""
+    points, normals = town
+    keep = np.hypot(points[:, 0] - x, points[:, 1] - y) < 45.0
+    return _turned(_Scan(points[keep] - np.array([x, y, 0.0]), normals[keep]), degrees)
+
+
+def test_aligned_footprints_find_one_town_seen_from_elsewhere_turned_any_way():
+    town, other = _town(1), _town(2)
+    for degrees in (37.0, 181.0, 250.0):  # the sinogram spans half a turn: 181 and 250 need the other half
+        scans = [_seen_from(town, 0.0, 0.0, 0.0), _seen_from(town, 6.0, -4.0, degrees),
+                 _seen_from(other, 0.0, 0.0, 0.0), _seen_from(other, 6.0, -4.0, degrees)]
+        footprints = radon_scores.Footprints(scans, [np.zeros(3)] * 4, 0.5)
+        same, others = footprints.aligned(0, [1]), footprints.aligned(0, [2, 3])
+        assert same[0] > 0.4 and same[0] > 1.8 * others.max()  # 0.46-0.6 against at most 0.26
+        assert footprints.aligned(1, [0, 2, 3]).argmax() == 0
+
+
+def test_aligned_footprints_rank_a_stations_nearest_neighbour_among_its_two_first(site):
+    prepared, truth = site
+    footprints = radon_scores.Footprints(prepared.scans, prepared.sensors, prepared.voxel)
+    positions = truth[:, :3, 3]
+    distance = np.linalg.norm(positions[:, None] - positions[None], axis=-1) + np.diag(np.full(12, np.inf))
+    others = [np.delete(np.arange(12), i) for i in range(12)]
+    ranks = [int(np.flatnonzero(o[np.argsort(-footprints.aligned(i, o))] == np.argmin(distance[i]))[0])
+             for i, o in enumerate(others)]
+    assert max(ranks) <= 1  # along a street the nearest and the next on the other side overlap alike
+    np.testing.assert_array_equal(footprints.scores, radon_scores.overlap_scores(prepared.scans, prepared.sensors,
+                                                                                 prepared.voxel))

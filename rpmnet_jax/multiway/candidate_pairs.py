@@ -132,7 +132,7 @@ def bridging_pairs(scores, labels, tried, k: int) -> list:
     largest = int(np.argmax(np.bincount(labels)))
     out = set()
     for i in np.flatnonzero(labels != largest):
-        _add_partners(out, scores[i], int(i), labels != labels[i], tried, k)
+        add_partners(out, scores[i], int(i), labels != labels[i], tried, k)
     return sorted(out)
 
 
@@ -143,7 +143,7 @@ def partners_among(scores, rows, among, tried, k: int) -> list:
     scores, among = _symmetric(scores), np.asarray(among, bool)
     out = set()
     for i in rows:
-        _add_partners(out, scores[i], int(i), among, tried, k)
+        add_partners(out, scores[i], int(i), among, tried, k)
     return sorted(out)
 
 
@@ -152,7 +152,7 @@ def _symmetric(scores) -> np.ndarray:
     return 0.5 * (scores + scores.T)
 
 
-def _add_partners(out: set, row: np.ndarray, i: int, allowed: np.ndarray, tried, k: int) -> None:
+def add_partners(out: set, row: np.ndarray, i: int, allowed, tried, k: int) -> None:
     """Adds to ``out`` the pairs of scan ``i`` with its ``k`` best by ``row (S,)`` where ``allowed (S,)``, ties
     to the lower index, skipping itself and the pairs already in ``tried`` or ``out``."""
     picked = 0

@@ -58,6 +58,22 @@ def unplaced_groups(num_scans: int, pair_edges, poses: np.ndarray, noise: tuple,
     return groups + [Group((int(s),), np.eye(4)[None]) for s in np.flatnonzero(unplaced & ~grouped)]
 
 
+def group_ends(group: Group, sensors, reach: float) -> list:
+    """The members of ``group`` at its ends: those whose fellow members with sensors within ``reach`` (``sensors``:
+    ``(3,)`` each, in its scan's coordinates, at the group's poses) all lie on one side of it (none does, or every
+    one lies within a right angle of their mean direction), in the group's order; all its members where none is
+    (a loop). A street's group meets the placed streets at its ends."""
+    at = np.array([pose[:3, :3] @ sensors[m] + pose[:3, 3] for m, pose in zip(group.members, group.poses)])
+    ends = []
+    for k, member in enumerate(group.members):
+        offsets = at - at[k]
+        distance = np.linalg.norm(offsets, axis=1)
+        near = offsets[(distance > 0) & (distance <= reach)]
+        if len(near) == 0 or (near @ near.mean(axis=0)).min() > 0:
+            ends.append(member)
+    return ends or list(group.members)
+
+
 def voted_frame(poses: np.ndarray, group: Group, pair_edges, agree_deg: float, agree_distance: float):
     """Where the pair edges between ``group``'s members and placed scans (finite in ``poses (S, 4, 4)``) put the
     group: ``(frame (4, 4): the group's frame → the placed scans', the edges that agree on it)``, the frame that

@@ -68,16 +68,17 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
 
 
 def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int, levelled=None) -> tuple:
-    """``([(i, j), ...], scores)``, ``i < j``: every pair up to ``all_pairs_up_to`` scans (``scores`` ``None``), else
-    each scan with its ``neighbours`` best partners by the overlap ``scores (S, S)`` and a spanning tree of those
-    scores (:mod:`rpmnet_jax.multiway.candidate_pairs`), whatever the order of the scans. The scores: with
-    ``levelled`` ``(sensors, voxel)`` (a levelled scene's scans, :func:`levelled`) the footprints' sinograms
-    (:mod:`rpmnet_jax.multiway.radon_scores`), else the bag of words."""
+    """``([(i, j), ...], scores, footprints)``, ``i < j``: every pair up to ``all_pairs_up_to`` scans (``scores`` and
+    ``footprints`` ``None``), else each scan with its ``neighbours`` best partners by the overlap ``scores (S, S)``
+    and a spanning tree of those scores (:mod:`rpmnet_jax.multiway.candidate_pairs`), whatever the order of the
+    scans. The scores: with ``levelled`` ``(sensors, voxel)`` (a levelled scene's scans, :func:`levelled`) the
+    footprints' sinograms (``footprints``, :class:`~rpmnet_jax.multiway.radon_scores.Footprints`), else the bag of
+    words (``footprints`` ``None``)."""
     if len(scans) <= all_pairs_up_to:
-        return list(itertools.combinations(range(len(scans)), 2)), None
-    scores = (candidate_pairs.overlap_scores(scans, seed=seed) if levelled is None
-              else radon_scores.overlap_scores(scans, *levelled))
-    return candidate_pairs.select_pairs(scores, neighbours), scores
+        return list(itertools.combinations(range(len(scans)), 2)), None, None
+    footprints = radon_scores.Footprints(scans, *levelled) if levelled is not None else None
+    scores = candidate_pairs.overlap_scores(scans, seed=seed) if footprints is None else footprints.scores
+    return candidate_pairs.select_pairs(scores, neighbours), scores, footprints
 
 
 def levelled(prepared: Prepared):

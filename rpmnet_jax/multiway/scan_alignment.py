@@ -43,7 +43,9 @@ one run state (:class:`_Run`); each step's work lives in its own module.
    them: a wrong edge that carried a group of scans onto a look-alike street) are cut, without solving the graph
    again, up to ``MAX_CUTS`` rounds, and the scans they carried go to step 4. In a levelled scene's campaign the
    groups left unplaced are then joined across the cuts (step 3c): up to ``BRIDGING_ROUNDS`` rounds, each
-   registering every unplaced scan with its next ``neighbours`` best-scored placed partners, then placing each
+   registering each group's ends (:func:`~rpmnet_jax.multiway.placement.group_ends`: a street's group meets the
+   placed streets there) with their next ``neighbours`` placed partners by how well their footprints align
+   (:meth:`~rpmnet_jax.multiway.radon_scores.Footprints.aligned`), then placing each
    group where two pair edges from different members to different placed scans agree
    (:func:`~rpmnet_jax.multiway.placement.voted_frame`: one wrong edge puts a group on a look-alike street, two
    rarely agree there); the group is checked where it lands as in 3b (its own edges that conflicts point at are cut
@@ -179,6 +181,7 @@ class _Run:
     pending: list = dataclasses.field(default_factory=list)  # scans placement could not place
     likely_wrong: set = dataclasses.field(default_factory=set)
     scores: np.ndarray = None  # (S, S) a levelled scene's campaign's footprint scores (else None)
+    footprints: object = None  # radon_scores.Footprints of a levelled scene's campaign (else None)
     tried: set = dataclasses.field(default_factory=set)  # the pairs registered by the classical edges
     weak_bar: float = 0.0  # a campaign's weak links (edge_graph.WEAK_LINK): 0 where every edge may join scans
     counts: dict = dataclasses.field(default_factory=dict)  # pairs registered per stage
@@ -281,7 +284,8 @@ def _pair_edges(run: _Run) -> None:
     o, clock, engine = run.options, run.clock, run.engine
     with clock.stage("candidates"):
         levelled = preparation.levelled(run.prepared)
-        pairs, scores = preparation.pairs_to_register(run.scans, o.all_pairs_up_to, o.neighbours, o.seed, levelled)
+        pairs, scores, run.footprints = preparation.pairs_to_register(run.scans, o.all_pairs_up_to, o.neighbours,
+                                                                      o.seed, levelled)
         run.scores = scores if levelled is not None else None
     weak = pairs
     if o.classical:
@@ -361,15 +365,16 @@ def _without_conflicts(run: _Run, poses: np.ndarray, edges, among=None) -> tuple
 def _join_across_cuts(run: _Run) -> None:
     """Step 3c, in a levelled scene's campaign: the groups of scans the graph left unplaced joined to the placed
     ones where two edges from different scans agree (:func:`_vote_groups`); up to ``BRIDGING_ROUNDS`` rounds, each
-    first registering the unplaced scans with their next ``neighbours`` best-scored placed partners."""
+    first registering each group's ends (:func:`~rpmnet_jax.multiway.placement.group_ends`) with their next
+    ``neighbours`` placed partners by how well their footprints align
+    (:meth:`~rpmnet_jax.multiway.radon_scores.Footprints.aligned`)."""
     o = run.options
     for r in range(BRIDGING_ROUNDS):
         placed = np.isfinite(run.poses[:, 0, 0])
         if placed.all():
             return
         with run.clock.stage("classical"):
-            pairs = candidate_pairs.partners_among(run.scores, np.flatnonzero(~placed), placed, run.tried,
-                                                   o.neighbours)
+            pairs = _end_pairs(run, placed)
             found = _classical(run, pairs, f"classical edges across the cuts, round {r + 1}")
             run.tried.update(found)
             run.pair_edges += [e for answers in found.values() for e in answers]
@@ -377,6 +382,19 @@ def _join_across_cuts(run: _Run) -> None:
             grew = _vote_groups(run)
         if not pairs and not grew:
             return
+
+
+def _end_pairs(run: _Run, placed: np.ndarray) -> list:
+    """Pairs ``[(i, j), ...]``, ``i < j``, sorted, none tried: the ends of each unplaced group
+    (:func:`_consistent_groups`) with their next ``neighbours`` best placed partners (``placed (S,)``) by
+    :meth:`~rpmnet_jax.multiway.radon_scores.Footprints.aligned`."""
+    cols, out = np.flatnonzero(placed), set()
+    for group in _consistent_groups(run):
+        for end in placement.group_ends(group, run.prepared.sensors, run.conflict_reach):
+            row = np.full(len(run.scans), -np.inf)
+            row[cols] = run.footprints.aligned(end, cols)
+            candidate_pairs.add_partners(out, row, end, placed, run.tried, run.options.neighbours)
+    return sorted(out)
 
 
 def _vote_groups(run: _Run) -> bool:
