@@ -1,24 +1,10 @@
-"""Joining groups of scans the pose graph left apart (step 3c): the unplaced scans' next partners among the placed
-ones (``candidate_pairs.partners_among``), a group's ends (``placement.group_ends``) and a group's frame where two
-edges from different scans agree (``placement.voted_frame``)."""
+"""Joining groups of scans the pose graph left apart (step 3c): a group's ends (``placement.group_ends``) and a
+group's frame where two edges from different scans agree (``placement.voted_frame``)."""
 
 import numpy as np
 
 from rpmnet_jax.multiway import candidate_pairs, placement
 from rpmnet_jax.pair_edges.edges import Edge
-
-
-def test_partners_among_only_the_given_scans_and_none_tried():
-    scores = np.array([[9.0, 5.0, 4.0, 3.0, 2.0],
-                       [5.0, 9.0, 1.0, 6.0, 7.0],
-                       [4.0, 1.0, 9.0, 8.0, 0.0],
-                       [3.0, 6.0, 8.0, 9.0, 1.0],
-                       [2.0, 7.0, 0.0, 1.0, 9.0]])
-    among = np.array([True, True, True, False, False])  # 0, 1, 2 placed
-    pairs = candidate_pairs.partners_among(scores, [3, 4], among, {(2, 3)}, 2)
-    assert pairs == [(0, 3), (0, 4), (1, 3), (1, 4)]  # (2, 3) was tried: 3 takes the next, 0
-    assert candidate_pairs.partners_among(scores, [3], among, set(), 1) == [(2, 3)]
-    assert candidate_pairs.partners_among(scores, [3], among, set(), 9) == [(0, 3), (1, 3), (2, 3)]  # only 3 there
 
 
 def test_a_streets_group_ends_at_its_first_and_last_station_and_a_corner():

@@ -126,3 +126,20 @@ def test_aligned_footprints_rank_a_stations_nearest_neighbour_among_its_two_firs
     assert max(ranks) <= 1  # along a street the nearest and the next on the other side overlap alike
     np.testing.assert_array_equal(footprints.scores, radon_scores.overlap_scores(prepared.scans, prepared.sensors,
                                                                                  prepared.voxel))
+
+
+def test_ranked_orders_each_scans_best_by_aligned_footprints_and_the_rest_by_the_sinograms(site):
+    prepared, _ = site
+    footprints = radon_scores.Footprints(prepared.scans, prepared.sensors, prepared.voxel)
+    ranked = footprints.ranked(3)
+    np.testing.assert_array_equal(ranked, ranked.T)
+    scores = footprints.scores - np.diag(np.full(12, np.inf))
+    best = [set(np.argsort(-scores[i], kind="stable")[:3]) for i in range(12)]
+    for i in range(12):
+        firsts = set(np.flatnonzero(ranked[i] >= 1.0)) - {i}
+        assert firsts == best[i] | {j for j in range(12) if i in best[j]}  # its 3 best, and those it is best of
+        for j in firsts:
+            ways = [footprints.aligned(a, [b])[0] for a, b in ((i, j), (j, i)) if b in best[a]]
+            assert ranked[i, j] == pytest.approx(1.0 + max(ways))
+        rest = np.setdiff1d(np.arange(12), list(firsts | {i}))
+        np.testing.assert_array_equal(ranked[i, rest], footprints.scores[i, rest])

@@ -136,17 +136,6 @@ def bridging_pairs(scores, labels, tried, k: int) -> list:
     return sorted(out)
 
 
-def partners_among(scores, rows, among, tried, k: int) -> list:
-    """Pairs ``[(i, j), ...]``, ``i < j``, sorted, none of ``tried``: each scan of ``rows`` with its ``k``
-    best-scored partners (``scores (S, S)``, made symmetric; ties to the lower index) among the scans where
-    ``among (S,)`` is true. After the pose graph, the unplaced scans' next partners among the placed ones."""
-    scores, among = _symmetric(scores), np.asarray(among, bool)
-    out = set()
-    for i in rows:
-        add_partners(out, scores[i], int(i), among, tried, k)
-    return sorted(out)
-
-
 def _symmetric(scores) -> np.ndarray:
     scores = np.asarray(scores, np.float64)
     return 0.5 * (scores + scores.T)

@@ -72,12 +72,12 @@ def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int, l
     ``footprints`` ``None``), else each scan with its ``neighbours`` best partners by the overlap ``scores (S, S)``
     and a spanning tree of those scores (:mod:`rpmnet_jax.multiway.candidate_pairs`), whatever the order of the
     scans. The scores: with ``levelled`` ``(sensors, voxel)`` (a levelled scene's scans, :func:`levelled`) the
-    footprints' sinograms (``footprints``, :class:`~rpmnet_jax.multiway.radon_scores.Footprints`), else the bag of
-    words (``footprints`` ``None``)."""
+    footprints' sinograms, each scan's best ordered again by how well the footprints align (``footprints``,
+    :meth:`~rpmnet_jax.multiway.radon_scores.Footprints.ranked`), else the bag of words (``footprints`` ``None``)."""
     if len(scans) <= all_pairs_up_to:
         return list(itertools.combinations(range(len(scans)), 2)), None, None
     footprints = radon_scores.Footprints(scans, *levelled) if levelled is not None else None
-    scores = candidate_pairs.overlap_scores(scans, seed=seed) if footprints is None else footprints.scores
+    scores = candidate_pairs.overlap_scores(scans, seed=seed) if footprints is None else footprints.ranked()
     return candidate_pairs.select_pairs(scores, neighbours), scores, footprints
 
 
