@@ -12,7 +12,9 @@ one run state (:class:`_Run`); each step's work lives in its own module.
 2. pair edges (:mod:`rpmnet_jax.multiway.edge_graph`): the candidate pairs are every pair up to ``all_pairs_up_to`` scans, else each scan with its
    ``neighbours`` best partners by a cheap overlap estimate (a bag of FPFH words per scan; for a levelled scene's
    scans, z up with known sensors, the footprints' Radon sinograms, :mod:`rpmnet_jax.multiway.radon_scores`,
-   which find the neighbours of a town's stations where the bag of words does not) plus a spanning tree
+   which find the neighbours of a town's stations where the bag of words does not, each scan's best of them
+   ordered again by how well the footprints align: :meth:`~rpmnet_jax.multiway.radon_scores.Footprints.ranked`)
+   plus a spanning tree
    of those scores (:mod:`rpmnet_jax.multiway.candidate_pairs`: O(S·k) pairs whatever the file order), and where
    those leave separate groups of scans, up to ``BRIDGING_ROUNDS`` rounds of each outside scan's next
    ``neighbours`` partners in other groups. Each is
