@@ -139,7 +139,7 @@ class Footprints:
         :attr:`cell`); the cells that coincide ÷ the geometric mean of the two counts, in ``[0, 1]``. Sees where
         things stand, not only their spread along each direction: a town's look-alike footprints agree in
         :attr:`scores` but not here (site seed 8's street ends: a placed neighbour first among 736 placed
-        stations for 39 of 49, by :attr:`scores` 0th–678th; tuning data)."""
+        stations for 38 of 49, by :attr:`scores` 0th–678th; tuning data)."""
         cols = np.asarray(cols, np.int64)
         angles = ANGLES
         size = 2 * ALIGN_CELLS
