@@ -263,12 +263,14 @@ def test_a_finer_refinement_voxel_makes_coarse_poses_precise():
     the scans prepared again at ``refine_voxel_size`` 0.002, by 0.007° (measured), and the answer reports the
     refinement's voxel and correspondence distance (2.5 voxels)."""
     clouds, truth = synthetic_scans()
-    errors = {}
+    errors, refined = {}, {}
     for fine in (None, 0.002):
         r = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(voxel_size=0.01, refine_voxel_size=fine))
         errors[fine] = max(rot for rot, _ in pose_errors.pose_errors(r.poses, truth, clouds))
+        refined[fine] = r.pairs["refine"]
         assert r.voxel_size == (fine or 0.01) and r.max_correspondence_distance == pytest.approx(2.5 * r.voxel_size)
     assert errors[None] > 0.05 and errors[0.002] < 0.02, errors
+    assert refined[0.002] > refined[None]  # both passes counted: at the registration's voxel, then the finer one
     with pytest.raises(ValueError, match="refine_voxel_size"):
         rpmnet_jax.ScanOptions(refine_voxel_size=0.0)
 

@@ -128,7 +128,8 @@ class ScanAlignment(NamedTuple):
     # graph, global, refine; total
     likely_wrong: tuple = ()  # placed scans whose pose rests on a likely wrong pair edge (step 3) or whose placement
     # by ``align`` (step 4) was flagged ``likely_wrong``
-    pairs: dict = {}  # pairs registered per stage: classical, network, global (placements), refine (pairs refined)
+    pairs: dict = {}  # pairs registered per stage: classical, network, global (placements), refine (pairs refined,
+    # both passes with refine_voxel_size)
 
 
 def align_scans(clouds, normals=None, *, viewpoints="auto",
@@ -552,7 +553,7 @@ def _refine(run: _Run) -> None:
         with run.clock.stage("refine"):
             run.poses, run.edges, run.refine_rejected = refinement.jointly(
                 run.engine, run.scans, run.poses, placed, run.max_dist, o, keep, run.tick("joint refinement stages"))
-            run.counts["refine"] = len(run.edges) + len(run.refine_rejected)
+            run.counts["refine"] = run.counts.get("refine", 0) + len(run.edges) + len(run.refine_rejected)
     if o.refine == "none" and run.global_edges:
         with run.clock.stage("graph"):
             run.poses, run.edges, run.refine_rejected = edge_graph.solve(
