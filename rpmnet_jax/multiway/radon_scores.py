@@ -121,16 +121,13 @@ class Footprints:
         """``(S, S)`` symmetric scores that rank each scan's ``best`` partners by :attr:`scores` first, among them
         by :meth:`aligned` (``1 +`` the larger of the pair's two ways, in ``[1, 2]``), then the rest by
         :attr:`scores` (in ``[0, 1]``)."""
-        out = self.scores.copy()
-        np.fill_diagonal(out, -np.inf)
-        top = np.argsort(-out, axis=1, kind="stable")[:, :min(best, len(out) - 1)]
-        aligned = np.full(out.shape, -np.inf)
+        others = self.scores - np.diag(np.full(len(self.scores), np.inf))  # a scan is not its own partner
+        top = np.argsort(-others, axis=1, kind="stable")[:, :min(best, len(others) - 1)]
+        aligned = np.full(others.shape, -np.inf)
         for i, cols in enumerate(top):
             aligned[i, cols] = self.aligned(i, cols)
-        aligned = np.maximum(aligned, aligned.T)
-        out = np.where(np.isfinite(aligned), 1.0 + aligned, self.scores)
-        np.fill_diagonal(out, np.diag(self.scores))
-        return out
+        aligned = np.maximum(aligned, aligned.T)  # the diagonal stays -inf: the scores keep it
+        return np.where(np.isfinite(aligned), 1.0 + aligned, self.scores)
 
     def aligned(self, row: int, cols) -> np.ndarray:
         """``(len(cols),)`` how well scan ``row``'s footprint covers each of ``cols``' once turned and slid onto it:
