@@ -11,8 +11,9 @@ from rpmnet_jax.evaluation import pose_errors
 from rpmnet_jax.geometry import cloud
 from rpmnet_jax.io import clouds as cloud_io
 from rpmnet_jax.io import poses as scan_poses
-from rpmnet_jax.multiway import edge_doubt, edge_graph, placement, preparation, sizes
+from rpmnet_jax.multiway import edge_doubt, edge_graph, placement, preparation, refinement, sizes
 from rpmnet_jax.pair_edges import edges as edges_lib
+from rpmnet_jax.pose_graphs import joint_refine
 
 BUNNY = DATA / "stanford_bunny"
 
@@ -258,12 +259,20 @@ def test_unplaced_scans_joined_by_edges_form_a_group_with_their_relative_poses()
     assert groups[0].edges == tuple(moved)
 
 
-def test_a_finer_refinement_voxel_makes_coarse_poses_precise():
+def test_a_finer_refinement_voxel_makes_coarse_poses_precise(monkeypatch):
     """Registered at a coarse voxel (0.01 on a 0.2 shape), the poses are off by up to 0.11° (measured); refined on
     the scans prepared again at ``refine_voxel_size`` 0.002, by 0.007° (measured), and the answer reports the
-    refinement's voxel and correspondence distance (2.5 voxels)."""
+    refinement's voxel and correspondence distance (2.5 voxels). The joint refinement runs twice: all its gates at
+    the registration's voxel, then the finer pass's gate, points and stop."""
     clouds, truth = synthetic_scans()
-    errors, refined = {}, {}
+    errors, refined, passes = {}, {}, []
+    refine_jointly = joint_refine.refine_jointly
+
+    def recorded(*args, **kwargs):
+        passes.append((kwargs["gates"], kwargs["num_points"], kwargs["tolerance"]))
+        return refine_jointly(*args, **kwargs)
+
+    monkeypatch.setattr(joint_refine, "refine_jointly", recorded)
     for fine in (None, 0.002):
         r = rpmnet_jax.align_scans(clouds, options=rpmnet_jax.ScanOptions(voxel_size=0.01, refine_voxel_size=fine))
         errors[fine] = max(rot for rot, _ in pose_errors.pose_errors(r.poses, truth, clouds))
@@ -271,6 +280,8 @@ def test_a_finer_refinement_voxel_makes_coarse_poses_precise():
         assert r.voxel_size == (fine or 0.01) and r.max_correspondence_distance == pytest.approx(2.5 * r.voxel_size)
     assert errors[None] > 0.05 and errors[0.002] < 0.02, errors
     assert refined[0.002] > refined[None]  # both passes counted: at the registration's voxel, then the finer one
+    first = (joint_refine.GATES, joint_refine.POINTS, joint_refine.TOLERANCE)
+    assert passes == [first, first, (refinement.FINER_GATES, refinement.FINER_POINTS, refinement.FINER_TOLERANCE)]
     with pytest.raises(ValueError, match="refine_voxel_size"):
         rpmnet_jax.ScanOptions(refine_voxel_size=0.0)
 

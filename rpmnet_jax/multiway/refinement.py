@@ -11,6 +11,18 @@ from rpmnet_jax.pair_edges import edges as edges_lib
 from rpmnet_jax.pose_graphs import joint_refine
 from rpmnet_jax.ops import se3
 
+FINER_GATES = joint_refine.GATES[-1:]  # the second pass's: the wider gates of a pass at a finer voxel only undo the
+# first pass (the town's 858 stations placed from seed 8's 1,000, tuning: its stages at 1 and 0.5 of the finer
+# correspondence distance ended at a median 7.3 and 1.7 cm off, the finest at 4.4 mm; from the first pass at the
+# finest gate alone, the same rows: 4 steps, not 9, 4.3 mm, worst 1.3 cm the same)
+FINER_POINTS = 4 * joint_refine.POINTS  # the second pass's points per directed pair: its rows' noise is what is left
+# (those 858 stations at the finest gate, 8 steps: 123 -> 44 beyond 1 cm RMS, median 6.6 -> 4.7 mm; a step 2x the
+# time; over the three gates of before: 9 steps of 1,000 rows)
+FINER_TOLERANCE = 3e-5  # the second pass's stop: no pose moved more than this (radians; x the set's radius: 1.1 cm
+# on the town). The first pass's 1e-4 (3.7 cm there) stopped it after 3 steps with another draw of rows (seed 1):
+# 716 within 1 cm, after 4: 808; below ~2e-5 the steps' jitter (rows meeting other neighbours) keeps it to
+# MAX_ITERATIONS. All three chosen on those stations (tuning data: not held-out)
+
 
 def overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=None) -> list:
     """``[(i, j), ...]``, ``i < j``: the placed pairs predicted to overlap by ``min_overlap`` at ``poses`` (the
@@ -56,14 +68,18 @@ def icp_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_,
     return [e for e in engine.refine_edges(pairs, starts, round_, tick) if keep(e)], len(pairs)
 
 
-def jointly(engine, scans, poses, placed, max_dist, options, keep, tick) -> tuple:
+def jointly(engine, scans, poses, placed, max_dist, options, keep, tick, finer: bool = False) -> tuple:
     """``refine="joint"``: the overlapping pairs' points refine all poses together, then each pair is measured, the
     work on the pairs done by ``engine`` (:meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.map_pairs`: on a
-    cluster, tasks): (poses, kept edges, the other edges)."""
+    cluster, tasks): (poses, kept edges, the other edges). ``finer``: the second pass (``refine_voxel_size``), from
+    poses the first pass refined: its finest gate only (:data:`FINER_GATES`), on more points (:data:`FINER_POINTS`), to
+    a tighter stop (:data:`FINER_TOLERANCE`)."""
     o = options
     pairs = overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)
     poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed, tick=tick,
-                                        map_pairs=engine.map_pairs).poses
+                                        map_pairs=engine.map_pairs, gates=FINER_GATES if finer else joint_refine.GATES,
+                                        num_points=FINER_POINTS if finer else joint_refine.POINTS,
+                                        tolerance=FINER_TOLERANCE if finer else joint_refine.TOLERANCE).poses
     measured = [e for share in engine.map_pairs(measure_pairs, joint_refine.shares(pairs), poses, max_dist)
                 for e in share]
     return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]

@@ -533,6 +533,7 @@ def _refine(run: _Run) -> None:
     """Step 5: ``refine="icp"`` rounds of ICP edges, each a robust graph; ``"joint"`` all poses together;
     ``"none"`` with placed scans, one graph of the pair and placement edges at the pair edges' noise."""
     o, placed = run.options, run.placed()
+    finer = run.screened is not None  # the second pass (refine_voxel_size's finer scans), from refined poses
     run.screened = list(run.edges) if run.screened is None else run.screened  # the edges before any refinement
     keep = (lambda e: run.good(e, o.min_overlap))
     for r in range(o.refine_rounds if o.refine == "icp" and len(placed) > 1 else 0):
@@ -552,7 +553,8 @@ def _refine(run: _Run) -> None:
     if o.refine == "joint" and len(placed) > 1:
         with run.clock.stage("refine"):
             run.poses, run.edges, run.refine_rejected = refinement.jointly(
-                run.engine, run.scans, run.poses, placed, run.max_dist, o, keep, run.tick("joint refinement stages"))
+                run.engine, run.scans, run.poses, placed, run.max_dist, o, keep, run.tick("joint refinement stages"),
+                finer)
             run.counts["refine"] = run.counts.get("refine", 0) + len(run.edges) + len(run.refine_rejected)
     if o.refine == "none" and run.global_edges:
         with run.clock.stage("graph"):

@@ -27,6 +27,7 @@ GATES = (1.0, 0.5, 0.25)  # the stages' correspondence gates, × max_distance (T
 GATE_SIGMAS = 3.0  # no gate below this many robust standard deviations of the last step's residuals (noisy scans)
 MAX_ITERATIONS = 10  # per stage
 POINTS = 1000  # source points per directed pair
+TOLERANCE = 1e-4  # a stage ends when no pose moves more than this (radians; x the scans' radius in translation)
 CHUNK = 32  # directed pairs per share of the normal equations (a task on a cluster)
 DAMPING = 1e-10  # Levenberg's damping, × the mean diagonal of the normal equations: a guard against a singular
 # system only. At 1e-6 rotations about the far centre of a long path dominated the mean and held back its slow
@@ -135,7 +136,7 @@ def in_process(scans):
 
 
 def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num_points: int = POINTS,
-                   gates=GATES, max_iterations: int = MAX_ITERATIONS, tolerance: float = 1e-4, seed: int = 0,
+                   gates=GATES, max_iterations: int = MAX_ITERATIONS, tolerance: float = TOLERANCE, seed: int = 0,
                    tick=None, map_pairs=None) -> Refinement:
     """Refines ``poses (S, 4, 4)`` of :class:`~rpmnet_jax.pair_edges.edges.Scan` s over the overlapping ``pairs
     [(i, j), ...]``: up to ``num_points`` points of each scan of a pair against the other's tangent planes,
