@@ -76,12 +76,30 @@ def test_file_arguments(parser, *, dataset: str, pairs: int, rot_mag: float) -> 
     parser.add_argument("--threads", type=int, default=available_cpus(), help="CPUs to run on (default: all)")
 
 
+LIBRARIES = ("numpy", "scipy", "numba", "jax", "jaxlib", "gtsam")  # whose builds can change an answer
+
+
 def session(script: str, argv, threads: int, malloc: str) -> dict:
-    """What a results table states about its run: date, CPU, threads, malloc setting and the command line."""
+    """What a results table states about its run: date, CPU, threads, malloc setting, the command line and the
+    installed versions of :data:`LIBRARIES` (the same code on other builds can give other answers)."""
     args = list(sys.argv[1:] if argv is None else argv)
     return {"date": datetime.date.today().isoformat(), "cpu": cpu_model(), "cpus": available_cpus(),
             "threads": threads, "malloc": malloc,
-            "command": " ".join(["python", f"benchmarks/{script}", *_without_paths(args)])}
+            "command": " ".join(["python", f"benchmarks/{script}", *_without_paths(args)]),
+            "libraries": library_versions()}
+
+
+def library_versions() -> dict:
+    """``{name: version}`` of :data:`LIBRARIES` as installed (``None``: not installed), without importing them."""
+    from importlib import metadata
+
+    versions = {}
+    for name in LIBRARIES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    return versions
 
 
 _PATH_FLAGS = {"--torch-src": "PATH/TO/RPMNet/src", "--out-md": None, "--out-png": None, "--out-jsonl": None}
