@@ -22,6 +22,8 @@ FINER_TOLERANCE = 3e-5  # the second pass's stop: no pose moved more than this (
 # on the town). The first pass's 1e-4 (3.7 cm there) stopped it after 3 steps with another draw of rows (seed 1):
 # 716 within 1 cm, after 4: 808; below ~2e-5 the steps' jitter (rows meeting other neighbours) keeps it to
 # MAX_ITERATIONS. All three chosen on those stations (tuning data: not held-out)
+PASSES = {False: {"gates": joint_refine.GATES, "num_points": joint_refine.POINTS, "tolerance": joint_refine.TOLERANCE},
+          True: {"gates": FINER_GATES, "num_points": FINER_POINTS, "tolerance": FINER_TOLERANCE}}  # by ``finer``
 
 
 def overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=None) -> list:
@@ -77,9 +79,7 @@ def jointly(engine, scans, poses, placed, max_dist, options, keep, tick, finer: 
     o = options
     pairs = overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)
     poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed, tick=tick,
-                                        map_pairs=engine.map_pairs, gates=FINER_GATES if finer else joint_refine.GATES,
-                                        num_points=FINER_POINTS if finer else joint_refine.POINTS,
-                                        tolerance=FINER_TOLERANCE if finer else joint_refine.TOLERANCE).poses
+                                        map_pairs=engine.map_pairs, **PASSES[finer]).poses
     measured = [e for share in engine.map_pairs(measure_pairs, joint_refine.shares(pairs), poses, max_dist)
                 for e in share]
     return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]
