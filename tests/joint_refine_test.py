@@ -127,6 +127,46 @@ def test_the_normal_equations_hold_only_the_pairs_blocks():
                                atol=1e-10 * np.abs(dense_step).max())
 
 
+def _reference_pair(scans, i, j, poses, num_points, seed, centre, gate):
+    """One directed pair's ``(A (12, 12), b (12,), r)`` in plain NumPy with SciPy's k-d tree: the Tukey-weighted
+    point-to-plane residuals of scan ``i``'s seeded rows on scan ``j``'s tangent planes and their derivatives in
+    ``(ω_i, v_i, ω_j, v_j)`` (left twists about ``centre``)."""
+    from scipy.spatial import cKDTree
+
+    rows = joint_refine._rows(scans, i, j, num_points, seed)
+    x = scans[i].points[rows] @ poses[i][:3, :3].T + poses[i][:3, 3]
+    in_j = (x - poses[j][:3, 3]) @ poses[j][:3, :3]
+    dist, idx = cKDTree(scans[j].points).query(in_j, distance_upper_bound=gate)
+    near = np.isfinite(dist)
+    x = x[near] - centre
+    q = scans[j].points[idx[near]] @ poses[j][:3, :3].T + poses[j][:3, 3] - centre
+    n = scans[j].normals[idx[near]] @ poses[j][:3, :3].T
+    r = np.sum((x - q) * n, axis=1)
+    w = (1.0 - np.minimum(np.abs(r) / gate, 1.0) ** 2) ** 2
+    jac = np.concatenate([np.cross(x, n), n, np.cross(n, x - q) - np.cross(q, n), -n], axis=1)
+    return jac.T @ (jac * w[:, None]), jac.T @ (w * r), r
+
+
+def test_the_compiled_pair_equations_match_a_numpy_reference():
+    """The compiled rows (query, residual, Jacobian, Tukey weight, sums) give the blocks and gradients of a plain
+    NumPy computation with SciPy's k-d tree, for each directed pair, both gates and both row counts (serial and
+    parallel queries)."""
+    clouds, truth = ring_scans(4)
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
+    start = _perturbed(truth, 0.1, 0.0005, seed=4)
+    centre = np.mean([p[:3, 3] for p in start], axis=0)
+    for num_points, gate in ((200, sizes.DISTANCE_VOXELS * voxel), (1500, voxel)):
+        for i, j in ((0, 1), (1, 0), (2, 3), (3, 2)):
+            blocks, g, r = joint_refine.pair_equations(scans, [(i, j)], start, num_points, 0, centre, gate)
+            a, b, want = _reference_pair(scans, i, j, start, num_points, 0, centre, gate)
+            assert len(want) > 50 and len(r) == len(want)
+            np.testing.assert_allclose(r, want, rtol=0, atol=1e-12)
+            for (s, t), block in (((i, i), a[:6, :6]), ((j, j), a[6:, 6:]), ((i, j), a[:6, 6:]), ((j, i), a[6:, :6])):
+                np.testing.assert_allclose(blocks[s, t], block, rtol=0, atol=1e-10 * np.abs(a).max())
+            np.testing.assert_allclose(g[i], b[:6], rtol=0, atol=1e-10 * np.abs(b).max())
+            np.testing.assert_allclose(g[j], b[6:], rtol=0, atol=1e-10 * np.abs(b).max())
+
+
 def test_near_pairs_are_every_pair_whose_spheres_touch():
     """The k-d tree's candidates give exactly the all-pairs rule (spheres within ``max_dist``), sorted, on a
     random set of spheres of mixed sizes, and nothing for fewer than two."""

@@ -20,14 +20,15 @@ from rpmnet_jax.geometry import kdtree
 
 
 def estimate_normals(points: np.ndarray, k: int = 16, viewpoint: np.ndarray | None = None,
-                     orient: bool = True) -> np.ndarray:
+                     orient: bool = True, tree: kdtree.KdTree | None = None) -> np.ndarray:
     """Unit normals ``(N, 3)`` of ``points (N, 3)`` from their ``k`` nearest neighbours, oriented
     consistently (see the module docstring); ``viewpoint (3,)`` in the points' frame, or ``None``.
-    ``orient=False`` skips the orientation (signs arbitrary: enough for point-to-plane distances)."""
+    ``orient=False`` skips the orientation (signs arbitrary: enough for point-to-plane distances). ``tree``: a
+    k-d tree of ``points`` the caller keeps (built here otherwise)."""
     points = np.asarray(points, np.float64)
     n = len(points)
     k = max(3, min(k, n))
-    _, idx = kdtree.KdTree(points).query(points, k=k)
+    _, idx = (tree if tree is not None else kdtree.KdTree(points)).query(points, k=k)
     normals = _pca_normals(points, idx)
     if not orient:
         return normals
@@ -40,10 +41,11 @@ def estimate_normals(points: np.ndarray, k: int = 16, viewpoint: np.ndarray | No
     return normals
 
 
-def facing(points: np.ndarray, sensor: np.ndarray, k: int = 16) -> np.ndarray:
+def facing(points: np.ndarray, sensor: np.ndarray, k: int = 16, tree: kdtree.KdTree | None = None) -> np.ndarray:
     """Unit normals ``(N, 3)`` of a scan ``points (N, 3)`` taken from ``sensor (3,)``, each turned toward it (as
-    Open3D's ``orient_normals_towards_camera_location``): every surface a sensor saw faces it, indoors and out."""
-    normals = estimate_normals(points, k, orient=False)
+    Open3D's ``orient_normals_towards_camera_location``): every surface a sensor saw faces it, indoors and out.
+    ``tree``: as :func:`estimate_normals`'."""
+    normals = estimate_normals(points, k, orient=False, tree=tree)
     toward = np.sum(normals * (np.asarray(sensor, np.float64) - points), axis=1) < 0
     normals[toward] *= -1
     return normals

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax.geometry import cloud, normals as normals_lib, sampling, sensors, threads
+from rpmnet_jax.geometry import cloud, kdtree, normals as normals_lib, sampling, sensors, threads
 from rpmnet_jax.multiway import candidate_pairs, radon_scores, sizes
 from rpmnet_jax.pair_edges import edges as edges_lib
 
@@ -62,9 +62,10 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
     p, n = sampling.voxel_downsample(points if shift is None else points - shift, normals, voxel)
     if len(p) < MIN_VOXEL_POINTS:
         return len(p)
+    tree = kdtree.KdTree(p)  # one tree for the normals and the scan
     if n is None:
-        n = normals_lib.estimate_normals(p) if sensor is None else normals_lib.facing(p, sensor)
-    return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel if features else None, voxel, seed=index)
+        n = normals_lib.estimate_normals(p, tree=tree) if sensor is None else normals_lib.facing(p, sensor, tree=tree)
+    return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel if features else None, voxel, seed=index, tree=tree)
 
 
 def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int, levelled=None) -> tuple:

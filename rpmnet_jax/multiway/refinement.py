@@ -22,6 +22,10 @@ FINER_TOLERANCE = 3e-5  # the second pass's stop: no pose moved more than this (
 # on the town). The first pass's 1e-4 (3.7 cm there) stopped it after 3 steps with another draw of rows (seed 1):
 # 716 within 1 cm, after 4: 808; below ~2e-5 the steps' jitter (rows meeting other neighbours) keeps it to
 # MAX_ITERATIONS. All three chosen on those stations (tuning data: not held-out)
+MEASURED_POINTS = 10_000  # the refinement's edges are scored on every k-th point of the source scan, at least this
+# many (fitness to ~0.5%, the binomial error of 10,000 draws): the finer pass's scans of the town hold ~47,000 points,
+# and scoring all of them took 8.5 ms a pair, as long as the joint refinement's steps together. Not chosen on data: an
+# object's scan (fewer points) is scored on all of them as before
 PASSES = {False: {"gates": joint_refine.GATES, "num_points": joint_refine.POINTS, "tolerance": joint_refine.TOLERANCE},
           True: {"gates": FINER_GATES, "num_points": FINER_POINTS, "tolerance": FINER_TOLERANCE}}  # by ``finer``
 
@@ -70,22 +74,27 @@ def icp_round(engine, scans, poses, placed, max_dist, min_overlap, keep, round_,
     return [e for e in engine.refine_edges(pairs, starts, round_, tick) if keep(e)], len(pairs)
 
 
-def jointly(engine, scans, poses, placed, max_dist, options, keep, tick, finer: bool = False) -> tuple:
+def jointly(engine, scans, poses, placed, max_dist, options, keep, tick, finer: bool = False,
+            measured: bool = True) -> tuple:
     """``refine="joint"``: the overlapping pairs' points refine all poses together, then each pair is measured, the
     work on the pairs done by ``engine`` (:meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.map_pairs`: on a
-    cluster, tasks): (poses, kept edges, the other edges). ``finer``: the second pass (``refine_voxel_size``), from
-    poses the first pass refined: its finest gate only (:data:`FINER_GATES`), on more points (:data:`FINER_POINTS`), to
-    a tighter stop (:data:`FINER_TOLERANCE`)."""
+    cluster, tasks): (poses, kept edges, the other edges, the number of pairs refined). ``finer``: the second pass
+    (``refine_voxel_size``), from poses the first pass refined: its finest gate only (:data:`FINER_GATES`), on more
+    points (:data:`FINER_POINTS`), to a tighter stop (:data:`FINER_TOLERANCE`). Not ``measured`` (a first pass whose
+    edges a finer pass replaces): no edges, ``[]`` and ``[]``."""
     o = options
     pairs = overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)
     poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed, tick=tick,
                                         map_pairs=engine.map_pairs, **PASSES[finer]).poses
-    measured = [e for share in engine.map_pairs(measure_pairs, joint_refine.shares(pairs), poses, max_dist)
-                for e in share]
-    return poses, [e for e in measured if keep(e)], [e for e in measured if not keep(e)]
+    if not measured:
+        return poses, [], [], len(pairs)
+    edges = [e for share in engine.map_pairs(measure_pairs, joint_refine.shares(pairs), poses, max_dist) for e in share]
+    return poses, [e for e in edges if keep(e)], [e for e in edges if not keep(e)], len(pairs)
 
 
 @threads.compiled_loops()  # on a worker too: BLAS on one thread, as in this process
 def measure_pairs(scans, pairs, poses, max_dist) -> list:
-    """The edges ``i → j`` of ``pairs [(i, j), ...]`` measured at ``poses`` (indexable by scan; ``scans`` too)."""
-    return [edges_lib.measure(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist, "joint") for i, j in pairs]
+    """The edges ``i → j`` of ``pairs [(i, j), ...]`` measured at ``poses`` (indexable by scan; ``scans`` too), each
+    on at least :data:`MEASURED_POINTS` points of scan ``i`` (all of a smaller scan)."""
+    return [edges_lib.measure(scans, i, j, np.linalg.inv(poses[j]) @ poses[i], max_dist, "joint",
+                              num_points=MEASURED_POINTS) for i, j in pairs]

@@ -515,7 +515,7 @@ def _finer_scans(run: _Run) -> None:
     o = run.options
     if o.refine_voxel_size is None or o.refine == "none" or len(run.placed()) < 2:
         return
-    _refine(run)  # at the registration's voxel first: the finer correspondence distance cannot reach a pose the graph
+    _refine(run, answer=False)  # at the registration's voxel first: the finer correspondence distance cannot reach a pose the graph
     # left a metre or more off (seed 2's 300 stations refined at 0.1 m alone: 3 stations slid 1.82 m, not named)
     with run.clock.stage("refine"):
         clouds, normals, viewpoints = run.inputs
@@ -529,9 +529,11 @@ def _finer_scans(run: _Run) -> None:
             max_distance=run.max_dist, ransac_distance=sizes.RANSAC_VOXELS * fine.voxel))
 
 
-def _refine(run: _Run) -> None:
+def _refine(run: _Run, answer: bool = True) -> None:
     """Step 5: ``refine="icp"`` rounds of ICP edges, each a robust graph; ``"joint"`` all poses together;
-    ``"none"`` with placed scans, one graph of the pair and placement edges at the pair edges' noise."""
+    ``"none"`` with placed scans, one graph of the pair and placement edges at the pair edges' noise. Not
+    ``answer`` (the first of refine_voxel_size's two passes): ``"joint"`` measures no edges (the finer pass's are
+    the answer's)."""
     o, placed = run.options, run.placed()
     finer = run.screened is not None  # the second pass (refine_voxel_size's finer scans), from refined poses
     run.screened = list(run.edges) if run.screened is None else run.screened  # the edges before any refinement
@@ -552,10 +554,12 @@ def _refine(run: _Run) -> None:
             placed = run.placed()
     if o.refine == "joint" and len(placed) > 1:
         with run.clock.stage("refine"):
-            run.poses, run.edges, run.refine_rejected = refinement.jointly(
+            run.poses, found, rejected, refined = refinement.jointly(
                 run.engine, run.scans, run.poses, placed, run.max_dist, o, keep, run.tick("joint refinement stages"),
-                finer)
-            run.counts["refine"] = run.counts.get("refine", 0) + len(run.edges) + len(run.refine_rejected)
+                finer, measured=answer)
+            if answer:
+                run.edges, run.refine_rejected = found, rejected
+            run.counts["refine"] = run.counts.get("refine", 0) + refined
     if o.refine == "none" and run.global_edges:
         with run.clock.stage("graph"):
             run.poses, run.edges, run.refine_rejected = edge_graph.solve(

@@ -54,12 +54,13 @@ class Edge(NamedTuple):
 
 
 def make_scan(points: np.ndarray, normals: np.ndarray, feature_radius: float | None = None, voxel: float = 0.0,
-              seed=0) -> Scan:
+              seed=0, tree: kdtree.KdTree | None = None) -> Scan:
     """A :class:`Scan` of voxel-downsampled ``points, normals (V, 3)``; with ``feature_radius``, the FPFH (that
     radius, over the whole scan) of its keypoints: one per cube of ``KEYPOINT_VOXELS × voxel`` (every point at
-    ``voxel`` 0), at most ``FEATURE_POINTS`` drawn with ``seed`` (an int or a sequence of ints)."""
+    ``voxel`` 0), at most ``FEATURE_POINTS`` drawn with ``seed`` (an int or a sequence of ints). ``tree``: a k-d
+    tree of ``points`` already built (else built here)."""
     points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
-    scan = Scan(points, normals, kdtree.KdTree(points))
+    scan = Scan(points, normals, tree if tree is not None else kdtree.KdTree(points))
     if feature_radius is None:
         return scan
     keypoints = np.arange(len(points))
@@ -71,17 +72,21 @@ def make_scan(points: np.ndarray, normals: np.ndarray, feature_radius: float | N
 
 
 def measure(scans, i: int, j: int, transform: np.ndarray, max_distance: float, stage: str,
-            plane_distance: float | None = None) -> Edge:
-    """The edge ``i → j`` at ``transform``, scored on all of scan ``i``: fitness (plain and balanced) and RMSE
-    within ``max_distance``, point-to-plane residual and information from the pairs within ``plane_distance``
+            plane_distance: float | None = None, num_points: int | None = None) -> Edge:
+    """The edge ``i → j`` at ``transform``, scored on all of scan ``i`` (or, with ``num_points``, on every k-th
+    point, at least ``num_points``: its information scaled back to all of them): fitness (plain and balanced) and
+    RMSE within ``max_distance``, point-to-plane residual and information from the pairs within ``plane_distance``
     (default ``max_distance``)."""
     src, ref = scans[i], scans[j]
-    score = scoring.evaluate_registration(src.points, ref.points, transform, max_distance, ref_tree=ref.tree)
+    step = 1 if num_points is None else max(1, len(src.points) // num_points)
+    points, normals = src.points[::step], src.normals[::step]
+    score = scoring.evaluate_registration(points, ref.points, transform, max_distance, ref_tree=ref.tree)
     close = score.correspondences[score.distances <= (plane_distance or max_distance)]
-    fit = scoring.plane_fit(src.points, ref.points, ref.normals, transform, close)
+    fit = scoring.plane_fit(points, ref.points, ref.normals, transform, close)
     residual = float(np.median(np.abs(fit.residuals))) if len(fit.residuals) else float("inf")
-    return Edge(int(i), int(j), np.asarray(transform, np.float64), score.fitness, score.inlier_rmse, fit.information,
-                residual, stage, balanced_fitness=scoring.balanced_fitness(src.normals, score.correspondences[:, 0]))
+    return Edge(int(i), int(j), np.asarray(transform, np.float64), score.fitness, score.inlier_rmse,
+                fit.information * (len(src.points) / len(points)), residual, stage,
+                balanced_fitness=scoring.balanced_fitness(normals, score.correspondences[:, 0]))
 
 
 def icp_edge(scans, i: int, j: int, start: np.ndarray, max_distance: float, rng: np.random.Generator, *,

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from scipy import sparse
 from scipy.sparse import linalg as sparse_linalg
 
 from rpmnet_jax.classical import icp
-from rpmnet_jax.geometry import sampling, threads
+from rpmnet_jax.geometry import kdtree, sampling, threads
 from rpmnet_jax.ops import se3
 
 GATES = (1.0, 0.5, 0.25)  # the stages' correspondence gates, × max_distance (Tukey's scale at each); measured on
@@ -56,28 +57,85 @@ def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, g
     non-zero (the diagonal of the scans in a pair and both orders of each pair), ``g`` maps a scan to its ``(6,)``
     gradient: O(pairs) memory, not O(S²). ``scans`` need hold only those of ``directed`` (a task's share)."""
     blocks, g, residuals = {}, {}, []
+    centre = np.asarray(centre, np.float64)
     for i, j in directed:
         rows = _rows(scans, i, j, num_points, seed)  # drawn again each step (cheap): a task needs no rows sent
-        x = se3.apply(poses[i], scans[i].points[rows])  # (M, 3) in the common frame
-        in_j = se3.apply(np.linalg.inv(poses[j]), x)
-        dist, idx = scans[j].tree.query(in_j, distance_upper_bound=gate)
-        near = np.isfinite(dist)
-        if not near.any():
+        src = np.ascontiguousarray(scans[i].points[rows], np.float64)
+        a, b, r = _pair_system(scans[j].tree.nodes, scans[j].normals, src, np.asarray(poses[i], np.float64),
+                               np.asarray(poses[j], np.float64), centre, float(gate), kdtree.chunks_for(len(src)))
+        if not len(r):
             continue
-        x = x[near] - centre
-        q = se3.apply(poses[j], scans[j].points[idx[near]]) - centre
-        n = se3.rotate(poses[j], scans[j].normals[idx[near]])
-        r = np.sum((x - q) * n, axis=1)
-        w = icp.tukey_weights(r, gate)
-        ji = np.concatenate([np.cross(x, n), n], axis=1)  # d r / d (ω_i, v_i)
-        jj = np.concatenate([np.cross(n, x - q) - np.cross(q, n), -n], axis=1)  # d r / d (ω_j, v_j)
-        wi, wj = ji * w[:, None], jj * w[:, None]
-        for key, block in (((i, i), ji.T @ wi), ((j, j), jj.T @ wj), ((i, j), ji.T @ wj), ((j, i), jj.T @ wi)):
+        for key, block in (((i, i), a[:6, :6]), ((j, j), a[6:, 6:]), ((i, j), a[:6, 6:]), ((j, i), a[6:, :6])):
             blocks[key] = blocks[key] + block if key in blocks else block
-        for s, part in ((i, wi.T @ r), (j, wj.T @ r)):
+        for s, part in ((i, b[:6]), (j, b[6:])):
             g[s] = g[s] + part if s in g else part
         residuals.append(r)
     return blocks, g, np.concatenate(residuals) if residuals else np.zeros(0)
+
+
+@numba.njit(cache=True)
+def _row_terms(nodes, normals, src, pose_i, pose_j, centre, gate, out, start, stop):
+    """Rows ``start..stop`` of :func:`_pair_system`: ``out[m] = (found, r, d r / d (ω_i, v_i, ω_j, v_j))`` of
+    ``src[m]`` (scan ``i``'s frame) moved by ``pose_i``, its nearest point of scan ``j`` (``nodes``; within
+    ``gate``) moved by ``pose_j``, both about ``centre``."""
+    work = kdtree.scratch()
+    d2, at = np.empty(1), np.empty(1, np.int64)
+    n = len(nodes.rows)
+    x, y, q, nq = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    for m in range(start, stop):
+        for a in range(3):
+            x[a] = pose_i[a, 0] * src[m, 0] + pose_i[a, 1] * src[m, 1] + pose_i[a, 2] * src[m, 2] + pose_i[a, 3]
+        for a in range(3):  # x in scan j's frame: R_j^T (x - t_j)
+            y[a] = (pose_j[0, a] * (x[0] - pose_j[0, 3]) + pose_j[1, a] * (x[1] - pose_j[1, 3])
+                    + pose_j[2, a] * (x[2] - pose_j[2, 3]))
+        kdtree.nearest(nodes, y[0], y[1], y[2], 1, gate * gate, d2, at, work)
+        if at[0] == n:
+            out[m, 0] = 0.0
+            continue
+        p, k = nodes.points[at[0]], nodes.rows[at[0]]
+        for a in range(3):
+            q[a] = pose_j[a, 0] * p[0] + pose_j[a, 1] * p[1] + pose_j[a, 2] * p[2] + pose_j[a, 3] - centre[a]
+            nq[a] = pose_j[a, 0] * normals[k, 0] + pose_j[a, 1] * normals[k, 1] + pose_j[a, 2] * normals[k, 2]
+            x[a] -= centre[a]
+        r = (x[0] - q[0]) * nq[0] + (x[1] - q[1]) * nq[1] + (x[2] - q[2]) * nq[2]
+        e0, e1, e2 = x[0] - q[0], x[1] - q[1], x[2] - q[2]
+        out[m, 0], out[m, 1] = 1.0, r
+        out[m, 2], out[m, 3], out[m, 4] = x[1] * nq[2] - x[2] * nq[1], x[2] * nq[0] - x[0] * nq[2], \
+            x[0] * nq[1] - x[1] * nq[0]  # x × n
+        out[m, 8] = nq[1] * e2 - nq[2] * e1 - (q[1] * nq[2] - q[2] * nq[1])  # n × (x − q) − q × n
+        out[m, 9] = nq[2] * e0 - nq[0] * e2 - (q[2] * nq[0] - q[0] * nq[2])
+        out[m, 10] = nq[0] * e1 - nq[1] * e0 - (q[0] * nq[1] - q[1] * nq[0])
+        for a in range(3):
+            out[m, 5 + a], out[m, 11 + a] = nq[a], -nq[a]
+
+
+@numba.njit(cache=True, parallel=True)
+def _pair_system(nodes, normals, src, pose_i, pose_j, centre, gate, chunks):
+    """``(A (12, 12), b (12,), r (C,))``: the normal equations' matrix and gradient at ``(ω_i, v_i, ω_j, v_j)`` of
+    the Tukey-weighted (scale ``gate``) point-to-plane residuals ``r`` of the rows of ``src (M, 3)`` that found a
+    neighbour: the rows' terms on ``chunks`` cores, their sums in row order (the same wherever it runs)."""
+    out = np.empty((len(src), 14))
+    per = (len(src) + chunks - 1) // chunks
+    for c in numba.prange(chunks):
+        _row_terms(nodes, normals, src, pose_i, pose_j, centre, gate, out, c * per, min((c + 1) * per, len(src)))
+    a, b = np.zeros((12, 12)), np.zeros(12)
+    r = np.empty(len(src))
+    count = 0
+    for m in range(len(src)):
+        if out[m, 0] == 0.0:
+            continue
+        w = icp.tukey_weights(out[m, 1], gate)
+        for s in range(12):
+            ws = w * out[m, 2 + s]
+            b[s] += ws * out[m, 1]
+            for t in range(s + 1):
+                a[s, t] += ws * out[m, 2 + t]
+        r[count] = out[m, 1]
+        count += 1
+    for s in range(12):
+        for t in range(s):
+            a[t, s] = a[s, t]
+    return a, b, r[:count]
 
 
 def _normal_equations(shares, num_scans: int):
