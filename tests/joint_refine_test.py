@@ -5,6 +5,7 @@ the pairs' blocks) give the dense solve's step."""
 import itertools
 
 import numpy as np
+import pytest
 
 from conftest import ring_scans, rotation_about, rotation_error_deg
 from rpmnet_jax.evaluation import pose_errors
@@ -165,6 +166,25 @@ def test_the_compiled_pair_equations_match_a_numpy_reference():
                 np.testing.assert_allclose(blocks[s, t], block, rtol=0, atol=1e-10 * np.abs(a).max())
             np.testing.assert_allclose(g[i], b[:6], rtol=0, atol=1e-10 * np.abs(b).max())
             np.testing.assert_allclose(g[j], b[6:], rtol=0, atol=1e-10 * np.abs(b).max())
+
+
+def test_steps_that_line_up_and_shrink_are_extrapolated():
+    """Besl and McKay's acceleration: a step along the last one, shrunk by ρ, is taken as the sum of the steps to
+    come, 1 / (1 − ρ), capped; a stage's first step, a step that turns away or grows: taken as it is. Translations
+    count over the radius (a step in metres on a 100 m set weighs like one in radians)."""
+    rng = np.random.default_rng(0)
+    last = rng.normal(size=(7, 6)) * [1e-3, 1e-3, 1e-3, 0.1, 0.1, 0.1]
+    assert joint_refine.extrapolation(0.5 * last, None, 100.0) == 1.0
+    assert joint_refine.extrapolation(0.5 * last, last, 100.0) == pytest.approx(2.0)
+    assert joint_refine.extrapolation(0.8 * last, last, 100.0) == pytest.approx(5.0)
+    assert joint_refine.extrapolation(0.99 * last, last, 100.0) == joint_refine.MAX_EXTRAPOLATION
+    assert joint_refine.extrapolation(1.2 * last, last, 100.0) == 1.0
+    assert joint_refine.extrapolation(-0.5 * last, last, 100.0) == 1.0
+    turned = 0.5 * np.roll(last, 1, axis=0)  # as long, another direction
+    assert joint_refine.extrapolation(turned, last, 100.0) == 1.0
+    translation = last * [0, 0, 0, 1, 1, 1]
+    assert joint_refine.extrapolation(0.5 * translation + 0.05 * last * [1, 1, 1, 0, 0, 0], translation,
+                                      1e6) == 1.0  # at a radius of 1e6 the rotations dominate: not aligned
 
 
 def test_near_pairs_are_every_pair_whose_spheres_touch():
