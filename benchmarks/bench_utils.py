@@ -89,6 +89,27 @@ def session(script: str, argv, threads: int, malloc: str) -> dict:
             "libraries": library_versions()}
 
 
+def reset_peak_memory() -> bool:
+    """Resets this process's peak resident memory (Linux: ``/proc/self/clear_refs``), so that
+    :func:`peak_memory_mb` measures from here; False where the system has no such reset."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_memory_mb() -> float | None:
+    """This process's peak resident memory since it started or since :func:`reset_peak_memory` (VmHWM), MB;
+    None where ``/proc`` is not there."""
+    try:
+        with open("/proc/self/status") as f:
+            return next(round(int(line.split()[1]) / 1024, 1) for line in f if line.startswith("VmHWM"))
+    except (OSError, StopIteration):
+        return None
+
+
 def library_versions() -> dict:
     """``{name: version}`` of :data:`LIBRARIES` as installed (``None``: not installed), without importing them."""
     from importlib import metadata
