@@ -67,6 +67,23 @@ def test_many_queries_on_every_core_and_repeated_points_equal_scipys():
             assert np.all(i[~found] == n)
 
 
+def test_a_reordered_tree_holds_the_points_once_in_its_order_and_answers_the_same():
+    """``reordered``: its data is the points in the tree's order (the very array the tree searches), ``order``
+    maps them back, and its neighbours (as rows of that data) are SciPy's, also after pickling."""
+    import pickle
+
+    rng = np.random.default_rng(3)
+    points, queries = rng.normal(size=(3000, 3)), rng.normal(size=(700, 3))
+    tree, order = kdtree.KdTree(points).reordered()
+    assert np.array_equal(tree.data, points[order]) and tree.data is tree.nodes.points
+    assert np.array_equal(np.sort(order), np.arange(len(points)))
+    want_d, want_i = cKDTree(tree.data).query(queries, k=3, distance_upper_bound=0.3)
+    for t in (tree, pickle.loads(pickle.dumps(tree))):
+        dist, idx = t.query(queries, k=3, distance_upper_bound=0.3)
+        np.testing.assert_allclose(dist, want_d, rtol=1e-12)
+        assert np.array_equal(idx, want_i)
+
+
 def test_the_compiled_query_gives_tree_positions_of_the_nearest():
     """``nearest`` (for compiled loops): squared distances, ascending, and positions in tree order."""
     rng = np.random.default_rng(3)

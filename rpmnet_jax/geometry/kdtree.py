@@ -243,6 +243,14 @@ class KdTree:
         self.n = len(self.data)
         self.nodes = Nodes(*_build(self.data.reshape(-1, 3)))
 
+    def reordered(self) -> tuple:
+        """``(tree, order (n,))``: this tree over ``data[order]``, the points in the tree's own order (the array it
+        searches, so the points are held once, not twice), its queries answering rows of that."""
+        tree = object.__new__(KdTree)
+        tree.data, tree.n = self.nodes.points, self.n
+        tree.nodes = self.nodes._replace(rows=np.arange(self.n))
+        return tree, self.nodes.rows
+
     def __reduce__(self):  # pickled as its points; the tree is built again where it is unpickled (a Dask worker)
         return KdTree, (self.data,)
 

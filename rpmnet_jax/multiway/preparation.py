@@ -58,13 +58,17 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
     ``None``; its ``sensor (3,)`` or ``None``, in the moved frame) voxel-downsampled at ``voxel``, with normals
     (averaged per voxel, else estimated: facing the sensor, else away from the centroid) and, with ``features``,
     the FPFH of its keypoints (drawn with seed ``index``): an :class:`~rpmnet_jax.pair_edges.edges.Scan`, or the
-    number of points left when fewer than ``MIN_VOXEL_POINTS``."""
+    number of points left when fewer than ``MIN_VOXEL_POINTS``. Without ``features`` (a refinement's scan) the points
+    are in the k-d tree's order (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.reordered`)."""
     p, n = sampling.voxel_downsample(points if shift is None else points - shift, normals, voxel)
     if len(p) < MIN_VOXEL_POINTS:
         return len(p)
     tree = kdtree.KdTree(p)  # one tree for the normals and the scan
     if n is None:
         n = normals_lib.estimate_normals(p, tree=tree) if sensor is None else normals_lib.facing(p, sensor, tree=tree)
+    if not features:  # a refinement's scan: its points in the tree's order, held once (a site's finer scans)
+        tree, order = tree.reordered()
+        p, n = tree.data, n[order]
     return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel if features else None, voxel, seed=index, tree=tree)
 
 
