@@ -91,7 +91,8 @@ def session(script: str, argv, threads: int, malloc: str) -> dict:
 
 def reset_peak_memory() -> bool:
     """Resets this process's peak resident memory (Linux: ``/proc/self/clear_refs``), so that
-    :func:`peak_memory_mb` measures from here; False where the system has no such reset."""
+    :func:`peak_memory_mb` measures from here (``getrusage``'s ``ru_maxrss`` is reset too: read it before);
+    False where the system has no such reset."""
     try:
         with open("/proc/self/clear_refs", "w") as f:
             f.write("5")

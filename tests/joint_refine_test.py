@@ -182,9 +182,12 @@ def test_steps_that_line_up_and_shrink_are_extrapolated():
     assert joint_refine.extrapolation(-0.5 * last, last, 100.0) == 1.0
     turned = 0.5 * np.roll(last, 1, axis=0)  # as long, another direction
     assert joint_refine.extrapolation(turned, last, 100.0) == 1.0
-    translation = last * [0, 0, 0, 1, 1, 1]
-    assert joint_refine.extrapolation(0.5 * translation + 0.05 * last * [1, 1, 1, 0, 0, 0], translation,
-                                      1e6) == 1.0  # at a radius of 1e6 the rotations dominate: not aligned
+    # half of the last step's translations, a tenth of its rotations about other axes: aligned where translations
+    # dominate (a radius of 1 m: 0.1 m against 1e-3 rad), not where the rotations do (1e4 m: 1e-5 against 1e-3)
+    mixed = np.concatenate([0.1 * np.roll(last[:, :3], 1, axis=1), 0.5 * last[:, 3:]], axis=1)
+    assert joint_refine.extrapolation(mixed, last, 1.0) > 1.5
+    assert joint_refine.extrapolation(mixed, last, 1e4) == 1.0
+    assert joint_refine.extrapolation(np.full((7, 6), np.nan), last, 100.0) == 1.0
 
 
 def test_near_pairs_are_every_pair_whose_spheres_touch():

@@ -515,8 +515,8 @@ def _finer_scans(run: _Run) -> None:
     o = run.options
     if o.refine_voxel_size is None or o.refine == "none" or len(run.placed()) < 2:
         return
-    _refine(run, answer=False)  # at the registration's voxel first: the finer correspondence distance cannot reach a pose the graph
-    # left a metre or more off (seed 2's 300 stations refined at 0.1 m alone: 3 stations slid 1.82 m, not named)
+    _refine(run, answer=False)  # at the registration's voxel first: the finer correspondence distance cannot reach a
+    # pose the graph left a metre or more off (seed 2's 300 stations refined at 0.1 m alone: 3 slid 1.82 m, not named)
     with run.clock.stage("refine"):
         clouds, normals, viewpoints = run.inputs
         run.engine.release()
