@@ -1,5 +1,6 @@
 """Step 1 of align_scans, one scan: a refinement's scan (prepared without features) holds the same points and
-normals as a registration's, in its k-d tree's order, each normal still with its point."""
+normals as a registration's, rounded to ``REFINEMENT_DTYPE``, in its k-d tree's order, each normal still with its
+point."""
 
 import numpy as np
 
@@ -8,9 +9,9 @@ from rpmnet_jax.multiway import preparation
 
 
 def _rows(points, normals):
-    """The ``(point, normal)`` rows sorted by the point: the same set whatever the order."""
-    rows = np.concatenate([points, normals], axis=1)
-    return rows[np.lexsort(rows[:, 2::-1].T)]
+    """The ``(point, normal)`` rows, rounded to the refinement's dtype, sorted: the same set whatever the order."""
+    rows = np.concatenate([points, normals], axis=1).astype(preparation.REFINEMENT_DTYPE)
+    return rows[np.lexsort(rows[:, ::-1].T)]
 
 
 def test_a_refinement_scan_keeps_each_normal_with_its_point_in_the_trees_order():
@@ -19,6 +20,7 @@ def test_a_refinement_scan_keeps_each_normal_with_its_point_in_the_trees_order()
     registered = preparation.prepare_scan(clouds[0], None, sensor, 0.01, 0)
     refined = preparation.prepare_scan(clouds[0], None, sensor, 0.01, 0, features=False)
     assert refined.features is None and registered.features is not None
+    assert refined.points.dtype == refined.normals.dtype == preparation.REFINEMENT_DTYPE  # compact
     assert not np.array_equal(refined.points, registered.points)  # another order ...
     np.testing.assert_array_equal(_rows(refined.points, refined.normals),
                                   _rows(registered.points, registered.normals))  # ... the same rows

@@ -65,8 +65,9 @@ def select(keys, rows, m, k):
 class Nodes(NamedTuple):
     """The tree's arrays (Numba reads them as one tuple)."""
 
-    points: np.ndarray  # (n, 3) float64: the points in tree order
-    rows: np.ndarray  # (n,) int64: each tree-order point's row in the caller's array
+    points: np.ndarray  # (n, 3) float64 (or float32: :meth:`KdTree.reordered`): the points in tree order
+    rows: np.ndarray  # (n,) int64: each tree-order point's row in the caller's array; empty: the caller's array is
+    # the tree's order (:func:`row_of`)
     axis: np.ndarray  # (nodes,) int64: the splitting axis, -1 for a leaf
     split: np.ndarray  # (nodes,) float64: the splitting coordinate
     first: np.ndarray  # (nodes,) int64: the node's points are points[first:last]; its children are 2i+1, 2i+2
@@ -126,11 +127,17 @@ def _build(points):
         _copy_box(box, node, 2 * node + 1)
         _copy_box(box, node, 2 * node + 2)
         box[2 * node + 1, 1, widest] = box[2 * node + 2, 0, widest] = split[node]
-    ordered = np.empty((n, 3))
+    ordered = np.empty((n, 3), points.dtype)
     for t in range(n):
         for a in range(3):
             ordered[t, a] = points[rows[t], a]
     return ordered, rows, axis, split, first, last
+
+
+@numba.njit(cache=True)
+def row_of(nodes, t):
+    """The caller's row of tree-order position ``t`` (``t < n``)."""
+    return nodes.rows[t] if len(nodes.rows) else t
 
 
 STACK = 64  # nodes waiting in a query: more than twice the depth of a tree of 2^31 points
@@ -147,7 +154,7 @@ def scratch():
 def nearest(nodes, x, y, z, k, bound2, out_d2, out_at, work):
     """The ``k`` nearest tree points of ``(x, y, z)`` closer than ``sqrt(bound2)``: squared distances into
     ``out_d2 (k,)`` (ascending, ``inf`` where none) and tree-order positions into ``out_at (k,)`` (``n`` where
-    none); ``work``: :func:`scratch`. For compiled loops: ``nodes.rows[out_at]`` are the caller's rows. A node waits on the stack with the
+    none); ``work``: :func:`scratch`. For compiled loops: :func:`row_of` gives the caller's rows. A node waits on the stack with the
     squared distance from the query to its cell (the sum over the axes of the offsets to the splits that bound
     it, Arya and Mount's incremental distance) and is skipped when that exceeds the current ``k``-th distance."""
     points, _, axis, split, first, last = nodes
@@ -196,8 +203,7 @@ def nearest(nodes, x, y, z, k, bound2, out_d2, out_at, work):
 @numba.njit(cache=True)
 def _query_rows(nodes, queries, k, bound2, dist, idx, start, stop):
     """Rows ``start..stop`` of :func:`query_into`."""
-    rows = nodes.rows
-    n = len(rows)
+    n = len(nodes.points)
     d2 = np.empty(k)
     at = np.empty(k, np.int64)
     work = scratch()
@@ -206,7 +212,7 @@ def _query_rows(nodes, queries, k, bound2, dist, idx, start, stop):
         for t in range(k):
             found = at[t] < n
             dist[i, t] = math.sqrt(d2[t]) if found else np.inf
-            idx[i, t] = rows[at[t]] if found else n
+            idx[i, t] = row_of(nodes, at[t]) if found else n
 
 
 @numba.njit(cache=True, parallel=True)
@@ -236,23 +242,27 @@ def chunks_for(count: int) -> int:
 
 
 class KdTree:
-    """A k-d tree of ``points (N, 3)`` (float64, kept as given in ``data``)."""
+    """A k-d tree of ``points (N, 3)`` (float64, kept as given in ``data``; :meth:`reordered`: in its own order,
+    float64 or float32)."""
 
     def __init__(self, points: np.ndarray):
         self.data = np.ascontiguousarray(points, np.float64)
         self.n = len(self.data)
         self.nodes = Nodes(*_build(self.data.reshape(-1, 3)))
 
-    def reordered(self) -> tuple:
+    def reordered(self, dtype=np.float64) -> tuple:
         """``(tree, order (n,))``: this tree over ``data[order]``, the points in the tree's own order (the array it
-        searches, so the points are held once, not twice), its queries answering rows of that."""
-        tree = object.__new__(KdTree)
-        tree.data, tree.n = self.nodes.points, self.n
-        tree.nodes = self.nodes._replace(rows=np.arange(self.n))
-        return tree, self.nodes.rows
+        searches, so the points are held once, not twice, and no row map), its queries answering rows of that.
+        ``dtype`` float32 holds them in half the bytes: the splits are rounded as the points are (rounding keeps
+        order), so it is the exact tree of the rounded points."""
+        points = self.nodes.points.astype(dtype, copy=False)
+        split = self.nodes.split.astype(dtype).astype(np.float64)  # inf stays inf
+        return _of_nodes(self.nodes._replace(points=points, rows=np.empty(0, np.int64), split=split)), \
+            self.nodes.rows
 
-    def __reduce__(self):  # pickled as its points; the tree is built again where it is unpickled (a Dask worker)
-        return KdTree, (self.data,)
+    def __reduce__(self):  # pickled as its points; the tree is built again where it is unpickled (a Dask worker);
+        # a reordered tree as its nodes (its points are its data: nothing twice, the same tree)
+        return (_of_nodes, (self.nodes,)) if self.data is self.nodes.points else (KdTree, (self.data,))
 
     def query(self, queries: np.ndarray, k: int = 1, distance_upper_bound: float = np.inf):
         """``(distances, indices)`` of the ``k`` nearest points of each of ``queries (Q, 3)``: ``(Q,)`` each for
@@ -261,3 +271,10 @@ class KdTree:
         dist, idx = np.empty((len(queries), k)), np.empty((len(queries), k), np.int64)
         query_into(self.nodes, queries, int(k), float(distance_upper_bound) ** 2, dist, idx, chunks_for(len(queries)))
         return (dist[:, 0], idx[:, 0]) if k == 1 else (dist, idx)
+
+
+def _of_nodes(nodes: Nodes) -> KdTree:
+    """A tree over ``nodes.points`` in their order (:meth:`KdTree.reordered`)."""
+    tree = object.__new__(KdTree)
+    tree.data, tree.n, tree.nodes = nodes.points, len(nodes.points), nodes
+    return tree

@@ -18,6 +18,9 @@ from rpmnet_jax.multiway import candidate_pairs, radon_scores, sizes
 from rpmnet_jax.pair_edges import edges as edges_lib
 
 MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
+REFINEMENT_DTYPE = np.float32  # a refinement's scans (points in their sensor's frame moved by the common shift, unit
+# normals): 24 bytes a point, not 48 + 8 (its tree's row map): a site's finer scans are most of its memory. Rounding
+# moves a point by at most 2^-24 of its coordinate (6 microns at 100 m); every estimate from them is in float64
 
 
 class Prepared(NamedTuple):
@@ -59,16 +62,17 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
     (averaged per voxel, else estimated: facing the sensor, else away from the centroid) and, with ``features``,
     the FPFH of its keypoints (drawn with seed ``index``): an :class:`~rpmnet_jax.pair_edges.edges.Scan`, or the
     number of points left when fewer than ``MIN_VOXEL_POINTS``. Without ``features`` (a refinement's scan) the points
-    are in the k-d tree's order (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.reordered`)."""
+    are in the k-d tree's order (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.reordered`), they and the normals in
+    ``REFINEMENT_DTYPE``."""
     p, n = sampling.voxel_downsample(points if shift is None else points - shift, normals, voxel)
     if len(p) < MIN_VOXEL_POINTS:
         return len(p)
     tree = kdtree.KdTree(p)  # one tree for the normals and the scan
     if n is None:
         n = normals_lib.estimate_normals(p, tree=tree) if sensor is None else normals_lib.facing(p, sensor, tree=tree)
-    if not features:  # a refinement's scan: its points in the tree's order, held once (a site's finer scans)
-        tree, order = tree.reordered()
-        p, n = tree.data, n[order]
+    if not features:  # a refinement's scan: its points in the tree's order, held once (a site's finer scans), compact
+        tree, order = tree.reordered(REFINEMENT_DTYPE)
+        return edges_lib.Scan(tree.data, n[order].astype(REFINEMENT_DTYPE), tree)
     return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel if features else None, voxel, seed=index, tree=tree)
 
 

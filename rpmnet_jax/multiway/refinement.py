@@ -35,7 +35,7 @@ def overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=No
     pairs whose bounding spheres lie apart are neither looked at nor enumerated: :func:`near_pairs`); with
     ``neighbours``, of those only each scan's ``neighbours`` most overlapping ones (their union)."""
     placed = sorted(placed)
-    means = {s: scans[s].points.mean(axis=0) for s in placed}  # each scan's centre in its own frame
+    means = {s: scans[s].points.mean(axis=0, dtype=np.float64) for s in placed}  # each scan's centre in its own frame
     centres = np.array([se3.apply(poses[s], means[s][None])[0] for s in placed]).reshape(-1, 3)
     radii = np.array([float(np.max(np.linalg.norm(scans[s].points - means[s], axis=1))) for s in placed])
     near = [(placed[a], placed[b]) for a, b in near_pairs(centres, radii, max_dist)]

@@ -85,7 +85,7 @@ def _row_terms(nodes, normals, src, pose_i, pose_j, centre, gate, out, start, st
     ``gate``) moved by ``pose_j``, both about ``centre``."""
     work = kdtree.scratch()
     d2, at = np.empty(1), np.empty(1, np.int64)
-    n = len(nodes.rows)
+    n = len(nodes.points)
     x, y, q, nq = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for m in range(start, stop):
         for a in range(3):
@@ -97,7 +97,7 @@ def _row_terms(nodes, normals, src, pose_i, pose_j, centre, gate, out, start, st
         if at[0] == n:
             out[m, 0] = 0.0
             continue
-        p, k = nodes.points[at[0]], nodes.rows[at[0]]
+        p, k = nodes.points[at[0]], kdtree.row_of(nodes, at[0])
         for a in range(3):
             q[a] = pose_j[a, 0] * p[0] + pose_j[a, 1] * p[1] + pose_j[a, 2] * p[2] + pose_j[a, 3] - centre[a]
             nq[a] = pose_j[a, 0] * normals[k, 0] + pose_j[a, 1] * normals[k, 1] + pose_j[a, 2] * normals[k, 2]
