@@ -178,6 +178,8 @@ def test_steps_that_line_up_and_shrink_are_extrapolated():
     assert joint_refine.extrapolation(0.5 * last, last, 100.0) == pytest.approx(2.0)
     assert joint_refine.extrapolation(0.8 * last, last, 100.0) == pytest.approx(5.0)
     assert joint_refine.extrapolation(0.99 * last, last, 100.0) == joint_refine.MAX_EXTRAPOLATION
+    assert joint_refine.extrapolation(0.99 * last, last, 100.0, cap=20.0) == 20.0
+    assert joint_refine.extrapolation(0.96 * last, last, 100.0, cap=40.0) == pytest.approx(25.0)
     assert joint_refine.extrapolation(1.2 * last, last, 100.0) == 1.0
     assert joint_refine.extrapolation(-0.5 * last, last, 100.0) == 1.0
     turned = 0.5 * np.roll(last, 1, axis=0)  # as long, another direction

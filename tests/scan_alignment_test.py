@@ -269,7 +269,8 @@ def test_a_finer_refinement_voxel_makes_coarse_poses_precise(monkeypatch):
     refine_jointly = joint_refine.refine_jointly
 
     def recorded(*args, **kwargs):
-        passes.append((kwargs["gates"], kwargs["num_points"], kwargs["tolerance"]))
+        passes.append({k: kwargs.get(k) for k in ("gates", "num_points", "tolerance", "max_iterations",
+                                                  "max_extrapolation")})
         return refine_jointly(*args, **kwargs)
 
     monkeypatch.setattr(joint_refine, "refine_jointly", recorded)
@@ -280,8 +281,12 @@ def test_a_finer_refinement_voxel_makes_coarse_poses_precise(monkeypatch):
         assert r.voxel_size == (fine or 0.01) and r.max_correspondence_distance == pytest.approx(2.5 * r.voxel_size)
     assert errors[None] > 0.05 and errors[0.002] < 0.02, errors
     assert refined[0.002] > refined[None]  # both passes counted: at the registration's voxel, then the finer one
-    first = (joint_refine.GATES, joint_refine.POINTS, joint_refine.TOLERANCE)
-    assert passes == [first, first, (refinement.FINER_GATES, refinement.FINER_POINTS, refinement.FINER_TOLERANCE)]
+    first = {"gates": joint_refine.GATES, "num_points": joint_refine.POINTS, "tolerance": joint_refine.TOLERANCE,
+             "max_iterations": None, "max_extrapolation": None}  # the defaults
+    finer = {"gates": refinement.FINER_GATES, "num_points": refinement.FINER_POINTS,
+             "tolerance": refinement.FINER_TOLERANCE, "max_iterations": refinement.FINER_ITERATIONS,
+             "max_extrapolation": refinement.FINER_EXTRAPOLATION}
+    assert passes == [first, first, finer]
     with pytest.raises(ValueError, match="refine_voxel_size"):
         rpmnet_jax.ScanOptions(refine_voxel_size=0.0)
 

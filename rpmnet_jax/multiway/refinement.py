@@ -11,23 +11,29 @@ from rpmnet_jax.pair_edges import edges as edges_lib
 from rpmnet_jax.pose_graphs import joint_refine
 from rpmnet_jax.ops import se3
 
-FINER_GATES = joint_refine.GATES[-1:]  # the second pass's: the wider gates of a pass at a finer voxel only undo the
-# first pass (the town's 858 stations placed from seed 8's 1,000, tuning: its stages at 1 and 0.5 of the finer
-# correspondence distance ended at a median 7.3 and 1.7 cm off, the finest at 4.4 mm; from the first pass at the
-# finest gate alone, the same rows: 4 steps, not 9, 4.3 mm, worst 1.3 cm the same)
-FINER_POINTS = 4 * joint_refine.POINTS  # the second pass's points per directed pair: its rows' noise is what is left
-# (those 858 stations at the finest gate, 8 steps: 123 -> 44 beyond 1 cm RMS, median 6.6 -> 4.7 mm; a step 2x the
-# time; over the three gates of before: 9 steps of 1,000 rows)
-FINER_TOLERANCE = 3e-5  # the second pass's stop: no pose moved more than this (radians; x the set's radius: 1.1 cm
-# on the town). The first pass's 1e-4 (3.7 cm there) stopped it after 3 steps with another draw of rows (seed 1):
-# 716 within 1 cm, after 4: 808; below ~2e-5 the steps' jitter (rows meeting other neighbours) keeps it to
-# MAX_ITERATIONS. All three chosen on those stations (tuning data: not held-out)
+FINER_GATES = (joint_refine.GATES[-1], joint_refine.GATES[-1] / 2)  # the second pass's, × its correspondence distance:
+# its wider gates only undo the first pass, and a wider gate's optimum lies further from the truth. The town's 1,000
+# stations of seed 8 (tuning), the finer pass started from the truth: 0.5 -> 15 within 0.2 deg and 1 cm (median
+# 19 mm), 0.25 -> 965 (4.2 mm), 0.125 -> 994 (3.4 mm): the wider gate takes in rows off the surface. From the first
+# pass's poses 0.125 alone is slow to reach what 0.25 then 0.125 reach (below)
+FINER_POINTS = 4 * joint_refine.POINTS  # the second pass's points per directed pair (those 858 stations placed from
+# seed 8's 1,000 at the gate 0.25, 8 steps: 123 -> 44 beyond 1 cm RMS, median 6.6 -> 4.7 mm over 1,000 rows; a step 2x
+# the time); more do not help: from the truth 16,000 rows end further off than 4,000 (950 within, not 965)
+FINER_TOLERANCE = 1.5e-5  # the second pass's stop: no pose moved more than this (radians; x the set's radius: 5.5 mm
+# on the town), in at most FINER_ITERATIONS steps a gate, each extrapolated up to FINER_EXTRAPOLATION times: the set
+# bends slowly (a branch of stations near the anchor held ~1.5 cm off at 3e-5)
+FINER_ITERATIONS = 15
+FINER_EXTRAPOLATION = 20.0
+# Seed 8's 1,000 (tuning), its finer pass replayed from the first pass's poses (float32 scans): gate 0.25, stop 3e-5,
+# 10 steps, cap 10 (before): 969 within, worst 2.4 cm, 64 s; 0.25 then 0.125 at 1.5e-5, 15 steps, cap 20: 994, worst
+# 1.2 cm, 13 steps, 121 s; 0.125 alone so: 992, 79 s; 0.125 at 1e-5, 20 steps, cap 10: 990, 160 s. Chosen there
 MEASURED_POINTS = 10_000  # the refinement's edges are scored on every k-th point of the source scan, at least this
 # many (fitness to ~0.5%, the binomial error of 10,000 draws): the finer pass's scans of the town hold ~47,000 points,
 # and scoring all of them took 8.5 ms a pair, as long as the joint refinement's steps together. Not chosen on data: an
 # object's scan (fewer points) is scored on all of them as before
 PASSES = {False: {"gates": joint_refine.GATES, "num_points": joint_refine.POINTS, "tolerance": joint_refine.TOLERANCE},
-          True: {"gates": FINER_GATES, "num_points": FINER_POINTS, "tolerance": FINER_TOLERANCE}}  # by ``finer``
+          True: {"gates": FINER_GATES, "num_points": FINER_POINTS, "tolerance": FINER_TOLERANCE,
+                 "max_iterations": FINER_ITERATIONS, "max_extrapolation": FINER_EXTRAPOLATION}}  # by ``finer``
 
 
 def overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=None) -> list:
@@ -79,8 +85,9 @@ def jointly(engine, scans, poses, placed, max_dist, options, keep, tick, finer: 
     """``refine="joint"``: the overlapping pairs' points refine all poses together, then each pair is measured, the
     work on the pairs done by ``engine`` (:meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.map_pairs`: on a
     cluster, tasks): (poses, kept edges, the other edges, the number of pairs refined). ``finer``: the second pass
-    (``refine_voxel_size``), from poses the first pass refined: its finest gate only (:data:`FINER_GATES`), on more
-    points (:data:`FINER_POINTS`), to a tighter stop (:data:`FINER_TOLERANCE`). Not ``measured`` (a first pass whose
+    (``refine_voxel_size``), from poses the first pass refined: its finest gate and half that (:data:`FINER_GATES`),
+    on more points (:data:`FINER_POINTS`), to a tighter stop (:data:`FINER_TOLERANCE`, :data:`FINER_ITERATIONS`,
+    :data:`FINER_EXTRAPOLATION`). Not ``measured`` (a first pass whose
     edges a finer pass replaces): no edges, ``[]`` and ``[]``."""
     o = options
     pairs = overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)

@@ -188,10 +188,10 @@ def _step(twist, centre):
     return step
 
 
-def extrapolation(x, last, radius: float) -> float:
+def extrapolation(x, last, radius: float, cap: float = MAX_EXTRAPOLATION) -> float:
     """How far to take the step ``x (U, 6)`` after ``last`` (the stage's step before, or None): where the two point
     the same way (cosine ≥ ``ALIGNED_COSINE``, translations over ``radius``) and shrink by ``ρ = |x| / |last|``,
-    the sum of the steps still to come, ``1 / (1 − ρ)`` (at most ``MAX_EXTRAPOLATION``); else 1. Besl and McKay's
+    the sum of the steps still to come, ``1 / (1 − ρ)`` (at most ``cap``); else 1. Besl and McKay's
     accelerated ICP ("A method for registration of 3-D shapes", PAMI 1992, §IV) extrapolates so when successive
     updates line up: a set's slow bending (most scans moving together, a little less each step) is such a case."""
     if last is None:
@@ -202,7 +202,7 @@ def extrapolation(x, last, radius: float) -> float:
     size, before = float(np.linalg.norm(a)), float(np.linalg.norm(b))
     if not (0.0 < size < before) or float(np.sum(a * b)) < ALIGNED_COSINE * size * before:  # NaN: not (...) too
         return 1.0
-    return min(1.0 / (1.0 - size / before), MAX_EXTRAPOLATION)
+    return min(1.0 / (1.0 - size / before), cap)
 
 
 def shares(pairs) -> list:
@@ -217,13 +217,13 @@ def in_process(scans):
 
 def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num_points: int = POINTS,
                    gates=GATES, max_iterations: int = MAX_ITERATIONS, tolerance: float = TOLERANCE, seed: int = 0,
-                   tick=None, map_pairs=None) -> Refinement:
+                   max_extrapolation: float = MAX_EXTRAPOLATION, tick=None, map_pairs=None) -> Refinement:
     """Refines ``poses (S, 4, 4)`` of :class:`~rpmnet_jax.pair_edges.edges.Scan` s over the overlapping ``pairs
     [(i, j), ...]``: up to ``num_points`` points of each scan of a pair against the other's tangent planes,
     both directions; ``gates`` × ``max_distance`` in turn (never below ``GATE_SIGMAS`` robust standard
     deviations of the residuals), up to ``max_iterations`` steps each, a stage ending when no pose moves by
     more than ``tolerance`` (radians; × the scans' radius in translation); a step along the stage's last one is
-    extrapolated (:func:`extrapolation`), a stage's last step too. Scan ``anchor`` stays where it is;
+    extrapolated (:func:`extrapolation`, at most ``max_extrapolation`` times), a stage's last step too. Scan ``anchor`` stays where it is;
     scans in no pair stay too. ``tick(done, total)`` after each stage (``total``: the number of stages).
     ``map_pairs(fn, chunks, *args)``: ``[fn(scans, chunk, *args) for chunk in chunks]`` anywhere (a cluster:
     :meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.map_pairs`); the normal equations are summed over
@@ -253,7 +253,7 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
             sigma = 1.4826 * float(np.median(np.abs(residuals)))
             x = _twists(blocks, g, used)
             stage_done = np.abs(x[:, :3]).max() < tolerance and np.abs(x[:, 3:]).max() < tolerance * radius
-            factor = extrapolation(x, last, radius)  # the stage's last step too: the steps to come are still owed
+            factor = extrapolation(x, last, radius, max_extrapolation)  # the stage's last step too: the steps to come are still owed
             # (the town's 1,000 stations, seed 8: 972 within 0.2 deg and 1 cm, 963 with the last step as it is)
             last = x
             for s, twist in zip(used, factor * x):
