@@ -254,7 +254,8 @@ class KdTree:
         """``(tree, order (n,))``: this tree over ``data[order]``, the points in the tree's own order (the array it
         searches, so the points are held once, not twice, and no row map), its queries answering rows of that.
         ``dtype`` float32 holds them in half the bytes: the splits are rounded as the points are (rounding keeps
-        order), so it is the exact tree of the rounded points."""
+        order), so it is a valid tree of the rounded points and its answers are exact for them (not necessarily the
+        tree ``KdTree`` would build from them)."""
         points = self.nodes.points.astype(dtype, copy=False)
         split = self.nodes.split.astype(dtype).astype(np.float64)  # inf stays inf
         return _of_nodes(self.nodes._replace(points=points, rows=np.empty(0, np.int64), split=split)), \
