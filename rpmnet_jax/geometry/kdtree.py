@@ -154,9 +154,10 @@ def scratch():
 def nearest(nodes, x, y, z, k, bound2, out_d2, out_at, work):
     """The ``k`` nearest tree points of ``(x, y, z)`` closer than ``sqrt(bound2)``: squared distances into
     ``out_d2 (k,)`` (ascending, ``inf`` where none) and tree-order positions into ``out_at (k,)`` (``n`` where
-    none); ``work``: :func:`scratch`. For compiled loops: :func:`row_of` gives the caller's rows. A node waits on the stack with the
-    squared distance from the query to its cell (the sum over the axes of the offsets to the splits that bound
-    it, Arya and Mount's incremental distance) and is skipped when that exceeds the current ``k``-th distance."""
+    none); ``work``: :func:`scratch`. For compiled loops: :func:`row_of` gives the caller's rows. A node waits on
+    the stack with the squared distance from the query to its cell (the sum over the axes of the offsets to the
+    splits that bound it, Arya and Mount's incremental distance) and is skipped when that exceeds the current
+    ``k``-th distance."""
     points, _, axis, split, first, last = nodes
     n = len(points)
     for t in range(k):

@@ -73,7 +73,7 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
     if not features:  # a refinement's scan: its points in the tree's order, held once (a site's finer scans), compact
         tree, order = tree.reordered(REFINEMENT_DTYPE)
         return edges_lib.Scan(tree.data, n[order].astype(REFINEMENT_DTYPE), tree)
-    return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel if features else None, voxel, seed=index, tree=tree)
+    return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=index, tree=tree)
 
 
 def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int, levelled=None) -> tuple:

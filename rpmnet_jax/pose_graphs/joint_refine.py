@@ -223,8 +223,8 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
     both directions; ``gates`` × ``max_distance`` in turn (never below ``GATE_SIGMAS`` robust standard
     deviations of the residuals), up to ``max_iterations`` steps each, a stage ending when no pose moves by
     more than ``tolerance`` (radians; × the scans' radius in translation); a step along the stage's last one is
-    extrapolated (:func:`extrapolation`, at most ``max_extrapolation`` times), a stage's last step too. Scan ``anchor`` stays where it is;
-    scans in no pair stay too. ``tick(done, total)`` after each stage (``total``: the number of stages).
+    extrapolated (:func:`extrapolation`, at most ``max_extrapolation`` times), a stage's last step too. Scan
+    ``anchor`` stays where it is; scans in no pair stay too. ``tick(done, total)`` after each stage (``total``: the number of stages).
     ``map_pairs(fn, chunks, *args)``: ``[fn(scans, chunk, *args) for chunk in chunks]`` anywhere (a cluster:
     :meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.map_pairs`); the normal equations are summed over
     shares of ``CHUNK`` directed pairs in a fixed order, so the poses do not depend on where the shares ran."""
@@ -253,8 +253,9 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
             sigma = 1.4826 * float(np.median(np.abs(residuals)))
             x = _twists(blocks, g, used)
             stage_done = np.abs(x[:, :3]).max() < tolerance and np.abs(x[:, 3:]).max() < tolerance * radius
-            factor = extrapolation(x, last, radius, max_extrapolation)  # the stage's last step too: the steps to come are still owed
-            # (the town's 1,000 stations, seed 8: 972 within 0.2 deg and 1 cm, 963 with the last step as it is)
+            factor = extrapolation(x, last, radius, max_extrapolation)  # the stage's last step too: the steps to
+            # come are still owed (the town's 1,000 stations, seed 8: 972 within 0.2 deg and 1 cm, 963 with the last
+            # step as it is)
             last = x
             for s, twist in zip(used, factor * x):
                 poses[s] = _step(twist, centre) @ poses[s]
