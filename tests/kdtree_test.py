@@ -93,8 +93,13 @@ def test_a_float32_reordered_tree_is_the_exact_tree_of_the_rounded_points():
     rng = np.random.default_rng(5)
     points = rng.uniform(-50, 50, (4000, 3))
     queries = rng.uniform(-50, 50, (900, 3))
-    tree, order = kdtree.KdTree(points).reordered(np.float32)
+    whole = kdtree.KdTree(points)
+    tree, order = whole.reordered(np.float32)
     assert tree.data.dtype == np.float32 and len(tree.nodes.rows) == 0
+    # compact nodes: the splits in the points' dtype, axes in a byte, positions in 4 bytes
+    assert (whole.nodes.split.dtype, tree.nodes.split.dtype) == (np.float64, np.float32)
+    for t in (whole, tree):
+        assert (t.nodes.axis.dtype, t.nodes.first.dtype, t.nodes.last.dtype) == (np.int8, np.int32, np.int32)
     rounded = points[order].astype(np.float32).astype(np.float64)
     assert np.array_equal(tree.data.astype(np.float64), rounded)
     want_d, want_i = cKDTree(rounded).query(queries, k=4, distance_upper_bound=3.0)

@@ -245,6 +245,34 @@ def test_a_campaign_places_each_scan_onto_its_placed_partners_only(monkeypatch):
     assert pending == [1, 2] and len(calls) == 1
 
 
+def test_a_campaign_places_a_scan_onto_the_placed_scans_its_pair_edges_join_first(monkeypatch):
+    """Step 4 with ``joined``: a scan whose pair edges join it to placed scans is registered onto those alone,
+    not onto its best-scored partners (a site's look-alike streets: seed 12's station 645 had right edges to two
+    placed neighbours, its best-scored placed partners lay 100-400 m away); without a placed one, onto those."""
+    import types
+
+    clouds, _ = synthetic_scans()
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]  # three scans
+    models = []
+
+    def align(src, model, *a, **k):
+        models.append(len(model))
+        return types.SimpleNamespace(transform=np.eye(4), fitness=1.0, correspondences=np.zeros((0, 2), int),
+                                     likely_wrong=False)
+
+    monkeypatch.setattr(placement.alignment, "align", align)
+    size = [len(placement.merged(scans, np.tile(np.eye(4), (3, 1, 1)), [s], voxel)[0]) for s in (0, 1)]
+    # (placed, best-scored partners, joined, the scan registered onto)
+    for placed, best, joined, onto in (((0, 1), [1], {2: [0]}, 0), ((0, 1), [1], {}, 1), ((0,), [0], {2: [1]}, 0)):
+        models.clear()
+        poses = np.full((3, 4, 4), np.nan)
+        poses[list(placed)] = np.eye(4)
+        poses, _, pending, _ = placement.place_remaining(
+            scans, poses, [placement.Group((2,), np.eye(4)[None])], None, None, voxel, sizes.DISTANCE_VOXELS * voxel,
+            lambda *_: True, 0, lambda *_: None, partners=lambda s, best=best: best, max_tries=1, joined=joined)
+        assert pending == [] and models == [size[onto]]
+
+
 def test_unplaced_scans_joined_by_edges_form_a_group_with_their_relative_poses():
     """The scans the pose graph left out come back as groups: those joined by pair edges with their own graph's
     relative poses (largest first), then single scans."""

@@ -37,6 +37,35 @@ def test_a_range_image_keeps_the_nearest_hit_per_direction():
     assert visibility.free_space_share(np.array([[0.0, 0.0, 4.0]]), image, 0.5) == 0.0  # a direction never seen
 
 
+def test_a_grid_point_reaches_the_bins_its_cell_spans():
+    """A wall 6 m from the sensor on a 0.6 m grid (one point every ~5.7 deg) in front of a far wall at 50 m seen
+    through the gaps: another scan's points on the near wall lie in no free space once each grid point reaches the
+    bins its cell spans; with the eight around its own only, most of them do (the gaps' far range)."""
+    from rpmnet_jax.geometry import sampling
+
+    rng = np.random.default_rng(0)
+    y, z = rng.uniform(-3, 3, (2, 40000))
+    near = np.stack([np.full(40000, 6.0), y, z], axis=1)  # dense returns on the near wall
+    far = np.stack([np.full(2000, 50.0), rng.uniform(-40, 40, 2000), rng.uniform(-40, 40, 2000)], axis=1)
+    grid, _ = sampling.voxel_downsample(near, None, 0.6)
+    seen = np.concatenate([grid, far])  # the far wall's few points fall in the near wall's gaps (grid points)
+    other = near[rng.choice(len(near), 500)] + [0.05, 0.0, 0.0]  # another scan's points on the near wall
+    share = {v: visibility.free_space_share(other, visibility.range_image(seen, np.zeros(3), v), 0.5)
+             for v in (0.0, 0.6)}
+    print(share)
+    assert share[0.6] == 0.0 and share[0.0] > 0.1
+    reference = visibility.range_image(seen, np.zeros(3))  # without a cell: the nearest of each bin and its 8
+    grid_image = np.full(visibility.AZIMUTH_BINS * visibility.ELEVATION_BINS, np.inf)
+    bins, r = visibility._bins(seen, np.zeros(3))
+    np.minimum.at(grid_image, bins, r)
+    grid_image = grid_image.reshape(visibility.AZIMUTH_BINS, visibility.ELEVATION_BINS)
+    padded = np.pad(grid_image, ((0, 0), (1, 1)), constant_values=np.inf)
+    nine = np.min([np.roll(padded, da, axis=0)[:, 1 + de:1 + de + visibility.ELEVATION_BINS]
+                   for da in (-1, 0, 1) for de in (-1, 0, 1)], axis=0).ravel()
+    np.testing.assert_array_equal(reference.free, np.where(np.isfinite(grid_image.ravel()), nine, -np.inf)
+                                  .astype(np.float32))
+
+
 def test_six_room_stations_are_placed_right_with_the_free_space_check(monkeypatch):
     """The simulated room's six stations, shuffled: every one within 1° and 5 cm (measured 0.005°, 0.1 mm); without
     the check, half-turned pair answers place stations 180° off (measured 0 of 5 right, one not named)."""

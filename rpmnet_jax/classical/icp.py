@@ -257,8 +257,8 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
     stage.
     """
     src = np.ascontiguousarray(src, np.float64)
-    ref = np.asarray(ref, np.float64)
-    normals = np.ascontiguousarray(ref_normals, np.float64)
+    normals = np.asarray(ref_normals)  # float32 kept (a scan set's compact scans: not copied for each pair)
+    normals = np.ascontiguousarray(normals, normals.dtype if normals.dtype == np.float32 else np.float64)
     src_n = None if src_normals is None else np.ascontiguousarray(src_normals, np.float64)
     if not max_distance > 0:
         raise ValueError(f"max_distance must be > 0, got {max_distance}")
@@ -268,7 +268,7 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
         raise ValueError(f"neighbours must be >= 1, got {neighbours}")
     if src_n is not None and src_n.shape != src.shape:
         raise ValueError(f"src_normals {src_n.shape} do not match src {src.shape}")
-    tree = ref_tree if ref_tree is not None else kdtree.KdTree(ref)
+    tree = ref_tree if ref_tree is not None else kdtree.KdTree(np.asarray(ref, np.float64))
     radius = max(cloud.radius(src), 1e-12)
     transform = np.array(init, np.float64)
     total, converged = 0, True

@@ -17,7 +17,10 @@ class Score(NamedTuple):
 
 
 def _as_points(name: str, x) -> np.ndarray:
-    x = np.asarray(x, np.float64)
+    """``x[:, :3]``, float32 kept as it is (a scan set's compact scans: rows are converted to float64 once picked,
+    not the whole cloud for each pair), anything else as float64."""
+    x = np.asarray(x)
+    x = x if x.dtype in (np.float32, np.float64) else x.astype(np.float64)
     if x.ndim != 2 or x.shape[1] < 3 or len(x) == 0:
         raise ValueError(f"{name}: expected a non-empty (N, 3) array, got shape {x.shape}")
     return x[:, :3]
@@ -35,7 +38,7 @@ def evaluate_registration(src, ref, transform, max_distance: float, ref_tree: kd
         raise ValueError(f"transform must be (4, 4) or (3, 4), got {t.shape}")
     if not max_distance > 0:
         raise ValueError(f"max_distance must be > 0, got {max_distance}")
-    moved = se3.apply(t, src)
+    moved = se3.apply(t, src.astype(np.float64, copy=False))
     tree = ref_tree if ref_tree is not None else kdtree.KdTree(ref)
     dist, idx = tree.query(moved, k=1, distance_upper_bound=max_distance)
     inlier = np.isfinite(dist) & (dist <= max_distance)
@@ -111,11 +114,11 @@ def plane_fit(src, ref, ref_normals, transform, correspondences) -> PlaneFit:
     corr = np.asarray(correspondences, np.int64).reshape(-1, 2)
     if len(corr) == 0:
         return PlaneFit(np.zeros((6, 6)), np.zeros(0))
-    p = src[corr[:, 0]]
-    n = np.asarray(ref_normals, np.float64)[corr[:, 1]]
-    residuals = np.sum((se3.apply(t, p) - ref[corr[:, 1]]) * n, axis=1)
+    p = src[corr[:, 0]].astype(np.float64)
+    n = np.asarray(ref_normals)[corr[:, 1]].astype(np.float64)
+    residuals = np.sum((se3.apply(t, p) - ref[corr[:, 1]].astype(np.float64)) * n, axis=1)
     m = n @ t[:3, :3]  # R^T n, row by row
     jac = np.concatenate([np.cross(p, m), m], axis=1)
-    extent = float(np.ptp(ref, axis=0).max()) or 1.0
+    extent = float(np.max(ref.max(axis=0).astype(np.float64) - ref.min(axis=0).astype(np.float64))) or 1.0
     sigma_sq = max(float(np.mean(residuals ** 2)), 1e-12 * extent ** 2)
     return PlaneFit(jac.T @ jac / sigma_sq, residuals)

@@ -40,13 +40,17 @@ class FreeSpace:
     answer's). Scans without known sensors pass."""
 
     def __init__(self, points, sensors, voxel: float):
-        self.sensors, self.margin = sensors, visibility.margin(voxel)
+        self.sensors, self.margin, self.voxel = sensors, visibility.margin(voxel), voxel
         self.points = [p if v is not None else None for p, v in zip(points, sensors)]  # only what is checked
+        self.images = {}
+
+    def release_images(self) -> None:
+        """Lets the range images go (made again when next needed): a site's finer scans need their memory."""
         self.images = {}
 
     def image(self, k: int):
         if k not in self.images:
-            self.images[k] = visibility.range_image(self.points[k], self.sensors[k])
+            self.images[k] = visibility.range_image(self.points[k], self.sensors[k], self.voxel)
         return self.images[k]
 
     def clear(self, i: int, j: int, transform: np.ndarray, bar: float | None = None) -> bool:

@@ -116,7 +116,7 @@ def merged(scans, poses, placed, voxel: float) -> tuple:
 
 
 def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, seed, tick, visible=None,
-                    partners=None, max_tries=None, place_doubtful=True):
+                    partners=None, max_tries=None, place_doubtful=True, joined=None):
     """Places the ``groups`` (:class:`Group` s of the scans NaN in ``poses (S, 4, 4)``), in order: each member in
     turn registered onto the merged placed scans until one's answer passes ``accept(fitness, median plane
     residual, balanced fitness)`` and, for a group of several scans, ``visible(edge) -> bool`` (the pair edges'
@@ -125,7 +125,8 @@ def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, 
     tried again from the first. A single scan whose edge to a placed scan fails ``visible`` is placed and named (a
     scan registered onto the merged scans can land on a street elsewhere that looks alike). With
     ``partners(scan) -> [scan, ...]`` (a levelled campaign's best-scored partners of a scan) a member is registered
-    onto its placed partners only, its group's edges measured to those, and every pending group is tried once a
+    onto its placed partners only (onto the placed scans ``joined[scan]`` when any: those its pair edges join it to,
+    measured to overlap it), its group's edges measured to those, and every pending group is tried once a
     round from at most ``max_tries`` of its members that have placed partners (local work: no merge of every
     placed scan, no restart after each placement). With ``place_doubtful=False`` no answer that fails
     ``visible`` or is ``likely_wrong`` places a scan (the next member is tried; a group none places stays
@@ -148,7 +149,8 @@ def place_remaining(scans, poses, groups, params, cfg, voxel, max_dist, accept, 
             is_placed = np.isfinite(poses[:, 0, 0])
 
             def model_of(s, is_placed=is_placed):
-                near = [o for o in partners(s) if is_placed[o]]
+                near = ([o for o in (joined or {}).get(s, ()) if is_placed[o]]
+                        or [o for o in partners(s) if is_placed[o]])
                 return (*merged(scans, poses, near, voxel), near) if near else None
         for group in list(pending):
             answer = _place_group(scans, poses, group, model_of, params, cfg, max_dist, accept, seed, visible,

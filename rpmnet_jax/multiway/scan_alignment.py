@@ -153,7 +153,8 @@ def align_scans(clouds, normals=None, *, viewpoints="auto",
         raise ValueError(f"options must be a ScanOptions, got {type(options).__name__}")
     with threads.compiled_loops(), pair_engine.PairEngine(scheduler, cache) as engine:
         run = _prepare(engine, clouds, normals, viewpoints, options, params, checkpoint, cfg, progress)
-        for stage in (_pair_edges, _pose_graph, _place_others, _finer_scans, _refine, _name_conflicts):
+        for stage in (_pair_edges, _pose_graph, _place_others, _finer_scans, _refine, _let_go_of_scans,
+                      _name_conflicts):
             stage(run)
         return _answer(run)
 
@@ -211,7 +212,7 @@ class _Run:
         """The robust graph of pair ``edges`` anchored in their largest component, less its weak links
         (:func:`~rpmnet_jax.multiway.edge_graph.without_weak_links` at :attr:`weak_bar`): (poses, kept, rejected,
         the first placed scan)."""
-        num_scans = len(self.scans)
+        num_scans = len(self.poses)
         poses, kept, rejected = edge_graph.solve(num_scans, edges, edge_graph.largest_component(num_scans, edges),
                                                  self.noise(NETWORK_NOISE_SCALE), self.options.seed,
                                                  self.ranking(edges))
@@ -237,7 +238,7 @@ class _Run:
         return self.good(edge, self.options.min_fitness, self.balance_bar)
 
     def placed(self) -> list:
-        return [s for s in range(len(self.scans)) if np.isfinite(self.poses[s, 0, 0])]
+        return [s for s in range(len(self.poses)) if np.isfinite(self.poses[s, 0, 0])]
 
     def tick(self, stage: str):
         """``tick(done, total)`` of ``stage`` (:func:`_ticker`)."""
@@ -299,7 +300,7 @@ def _pair_edges(run: _Run) -> None:
                 run.weak_bar = edge_graph.weak_bar([e for answers in found.values() for e in answers])
             for r in range(BRIDGING_ROUNDS if scores is not None else 0):  # the groups left apart: next partners
                 kept = [(e.source, e.target) for answers in found.values() for e in answers]
-                labels = pose_graph.components(len(run.scans), kept)
+                labels = pose_graph.components(len(run.poses), kept)
                 more = candidate_pairs.bridging_pairs(scores, labels, found, o.neighbours)
                 if not more:
                     break
@@ -307,7 +308,7 @@ def _pair_edges(run: _Run) -> None:
             run.tried = set(found)
             run.edges = [e for answers in found.values() for e in answers]  # a symmetric pair's answers: the graph
             # chooses
-        labels = pose_graph.components(len(run.scans), [(e.source, e.target) for e in run.edges])
+        labels = pose_graph.components(len(run.poses), [(e.source, e.target) for e in run.edges])
         weak = [p for p, answers in found.items() if not answers and labels[p[0]] != labels[p[1]]]
     if weak:
         with clock.stage("network"):
@@ -329,7 +330,7 @@ def _pose_graph(run: _Run) -> None:
     if not run.edges:
         return
     with run.clock.stage("graph"):
-        num_scans = len(run.scans)
+        num_scans = len(run.poses)
         run.pair_edges = list(run.edges)
         run.poses, run.edges, run.rejected, anchor = run.solve(run.edges)
         anchor = _cut_conflicts(run, anchor)
@@ -356,11 +357,11 @@ def _without_conflicts(run: _Run, poses: np.ndarray, edges, among=None) -> tuple
     dropped = []
     for _ in range(MAX_CUTS):
         found = _conflicts(run, poses, edges, among)
-        suspects = conflicts.suspects(len(run.scans), edges, run.ranking(edges), found) if found else []
-        bridges = {k for k in suspects if _bridge(len(run.scans), edges, k)}
+        suspects = conflicts.suspects(len(run.poses), edges, run.ranking(edges), found) if found else []
+        bridges = {k for k in suspects if _bridge(len(run.poses), edges, k)}
         if not bridges:
             break  # a cycle confirms each suspect: the conflicts are named after the refinement
-        poses, edges, cut = edge_graph.cut(len(run.scans), poses, edges, [k in bridges for k in range(len(edges))])
+        poses, edges, cut = edge_graph.cut(len(run.poses), poses, edges, [k in bridges for k in range(len(edges))])
         dropped += cut
     return poses, edges, dropped
 
@@ -394,7 +395,7 @@ def _end_pairs(run: _Run, placed: np.ndarray) -> list:
     cols, out = np.flatnonzero(placed), set()
     for group in _consistent_groups(run):
         for end in placement.group_ends(group, run.prepared.sensors, run.conflict_reach):
-            row = np.full(len(run.scans), -np.inf)
+            row = np.full(len(run.poses), -np.inf)
             row[cols] = run.footprints.aligned(end, cols)
             candidate_pairs.add_partners(out, row, end, placed, run.tried, run.options.neighbours)
     return sorted(out)
@@ -438,7 +439,7 @@ def _consistent_groups(run: _Run) -> list:
     ``run.pair_edges`` for ``run.rejected`` and the groups are formed again."""
     o = run.options
     while True:
-        groups = placement.unplaced_groups(len(run.scans), run.pair_edges, run.poses,
+        groups = placement.unplaced_groups(len(run.poses), run.pair_edges, run.poses,
                                            run.noise(NETWORK_NOISE_SCALE), o.seed, o.edge_doubt != "off",
                                            run.weak_bar)
         cut = set()
@@ -479,18 +480,18 @@ def _conflicts(run: _Run, poses: np.ndarray, edges, among=None) -> list:
 def _place_others(run: _Run) -> None:
     """Step 4: the scans still unplaced, in groups (those the pair edges join among themselves, largest first, then
     single scans: :func:`~rpmnet_jax.multiway.placement.unplaced_groups`), each registered onto the merged placed
-    scans; placed at ``min_fitness`` and the balance bar with coinciding surfaces and, for a group of several, with
+    scans (in a campaign, those its pair edges join it to, else its best-scored placed partners); placed at ``min_fitness`` and the balance bar with coinciding surfaces and, for a group of several, with
     no member in the free space of a placed scan it overlaps by ``min_overlap``; a single scan that lies there is
     placed and named ``likely_wrong`` (scans with known sensors, the pair edges' check), but in a levelled scene's
     campaign no answer that fails the check or is ``likely_wrong`` places a scan (it is left out: on a town's 1,000
     stations such answers were wrong 137 times of 137); edges to each placed scan kept at ``min_overlap`` (one scan
     may overlap a few)."""
     o = run.options
-    if not any(not np.isfinite(run.poses[s, 0, 0]) for s in range(len(run.scans))):
+    if not any(not np.isfinite(run.poses[s, 0, 0]) for s in range(len(run.poses))):
         return
     with run.clock.stage("global"):
         run.params = run.params if run.params is not None else loading.load_params(None)
-        groups = placement.unplaced_groups(len(run.scans), run.pair_edges, run.poses, run.noise(NETWORK_NOISE_SCALE),
+        groups = placement.unplaced_groups(len(run.poses), run.pair_edges, run.poses, run.noise(NETWORK_NOISE_SCALE),
                                            o.seed, o.edge_doubt != "off", run.weak_bar)
         run.poses, found, run.pending, doubtful = placement.place_remaining(
             run.scans, run.poses, groups, run.params, run.cfg, run.prepared.voxel, run.max_dist, seed=o.seed,
@@ -499,11 +500,22 @@ def _place_others(run: _Run) -> None:
                                                         and residual <= run.plane_bar * run.max_dist),
             visible=lambda e: e.fitness < o.min_overlap or run.visible(e),
             partners=None if run.scores is None else candidate_pairs.best_partners(run.scores, PLACE_PARTNERS),
-            max_tries=None if run.scores is None else PLACE_TRIES, place_doubtful=run.scores is None)
+            max_tries=None if run.scores is None else PLACE_TRIES, place_doubtful=run.scores is None,
+            joined=_joined(run.pair_edges))
         run.counts["global"] = sum(e.stage == "global" for e in found)
         run.global_edges = [e for e in found if e.stage != "global" or run.good(e, o.min_overlap)]
         run.edges += run.global_edges
         run.likely_wrong.update(doubtful)
+
+
+def _joined(edges) -> dict:
+    """``{scan: [scan, ...]}``: the scans ``edges`` join each to, in edge order, once each."""
+    joined = {}
+    for e in edges:
+        for a, b in ((e.source, e.target), (e.target, e.source)):
+            if b not in joined.setdefault(a, []):
+                joined[a].append(b)
+    return joined
 
 
 def _finer_scans(run: _Run) -> None:
@@ -520,6 +532,7 @@ def _finer_scans(run: _Run) -> None:
     with run.clock.stage("refine"):
         clouds, normals, viewpoints = run.inputs
         run.engine.release()
+        run.visible.release_images()  # made again for the conflicts named at the end, once the finer scans are gone
         coarse_voxel, run.prepared = run.prepared.voxel, run.prepared._replace(scans=None)
         fine = preparation.prepare_scans(clouds, normals, o.refine_voxel_size, run.shift, viewpoints, run.engine,
                                          run.tick("preparing scans for the refinement"), features=False)
@@ -545,7 +558,7 @@ def _refine(run: _Run, answer: bool = True) -> None:
             run.counts["refine"] = run.counts.get("refine", 0) + registered
             if not found:
                 break
-            run.poses, run.edges, run.refine_rejected = edge_graph.solve(len(run.scans), found, min(placed),
+            run.poses, run.edges, run.refine_rejected = edge_graph.solve(len(run.poses), found, min(placed),
                                                                          run.noise(), o.seed)
         dropped = [s for s in placed if s not in run.placed()]
         if dropped:
@@ -563,8 +576,16 @@ def _refine(run: _Run, answer: bool = True) -> None:
     if o.refine == "none" and run.global_edges:
         with run.clock.stage("graph"):
             run.poses, run.edges, run.refine_rejected = edge_graph.solve(
-                len(run.scans), run.edges, min(placed), run.noise(NETWORK_NOISE_SCALE), o.seed)
+                len(run.poses), run.edges, min(placed), run.noise(NETWORK_NOISE_SCALE), o.seed)
             run.screened = list(run.edges)  # the edges this solve kept
+
+
+def _let_go_of_scans(run: _Run) -> None:
+    """After step 5: the prepared scans let go, here and on the cluster (the answer needs its poses and edges; the
+    conflicts named next, the free-space check's points and reach)."""
+    run.conflict_reach  # noqa: B018 (kept: measured on the scans)
+    run.engine.release()
+    run.prepared = run.prepared._replace(scans=None)
 
 
 def _name_conflicts(run: _Run) -> None:
@@ -581,12 +602,12 @@ def _answer(run: _Run) -> ScanAlignment:
     """The poses relative to the first placed scan and the edges, moved back by the shift; what was left out."""
     if run.pending:
         campaign = run.scores is not None
-        onto = "their best-scored placed partners" if campaign else "them"
+        onto = "the placed scans their pair edges join or their best-scored ones" if campaign else "them"
         where = " outside the placed scans' free space, not likely wrong" if campaign else ""
         warnings.warn(f"scans {run.pending} overlap none of the placed scans (no registration onto {onto} reached "
                       f"fitness {run.options.min_fitness} with coinciding surfaces{where}); left out",
                       LeftOutWarning, stacklevel=3)
-    left_out = tuple(s for s in range(len(run.scans)) if s not in run.placed())
+    left_out = tuple(s for s in range(len(run.poses)) if s not in run.placed())
     first = min(run.placed())
     poses = offsets.unshift_transforms(np.linalg.inv(run.poses[first]) @ run.poses, run.shift)  # NaN stays NaN
     return ScanAlignment(poses, _unshifted(run.edges, run.shift), _unshifted(run.rejected + run.refine_rejected,
