@@ -1,6 +1,6 @@
-"""Step 1 of align_scans, one scan: a prepared scan (with features or without, a refinement's) holds the voxel
-grid's points and normals rounded to ``SCAN_DTYPE``, in its k-d tree's order, each normal still with its point, and
-its features are those of its keypoints' rows."""
+"""Step 1 of align_scans, one scan: a refinement's scan (prepared without features) holds the voxel grid's points
+and normals rounded to ``SCAN_DTYPE``, in its k-d tree's order, each normal still with its point; a registration's
+scan holds them in float64 in the grid's order, its features those of its keypoints' rows."""
 
 import numpy as np
 
@@ -17,25 +17,26 @@ def _rows(points, normals):
     return rows[np.lexsort(rows[:, ::-1].T)]
 
 
-def test_a_prepared_scan_keeps_each_normal_with_its_point_in_the_trees_order():
+def test_a_refinement_scan_keeps_each_normal_with_its_point_in_the_trees_order():
     clouds, _ = ring_scans(2)
     sensor = clouds[0].mean(axis=0) + [0.0, 0.0, 1.0]  # normals face a sensor: their signs depend on the point
     grid, _ = sampling.voxel_downsample(clouds[0], None, 0.01)
-    expected = _rows(grid, normals_lib.facing(grid, sensor))
-    for features in (True, False):
-        scan = preparation.prepare_scan(clouds[0], None, sensor, 0.01, 0, features=features)
-        assert (scan.features is not None) == features
-        assert scan.points.dtype == scan.normals.dtype == preparation.SCAN_DTYPE  # compact
-        assert not np.array_equal(scan.points, grid.astype(preparation.SCAN_DTYPE))  # another order ...
-        np.testing.assert_allclose(_rows(scan.points, scan.normals), expected, atol=1e-6)  # ... the same rows
-        assert np.shares_memory(scan.tree.data, scan.points)  # the points held once
-        _, idx = scan.tree.query(scan.points[::7])
-        assert np.array_equal(idx, np.arange(0, len(scan.points), 7))
+    registered = preparation.prepare_scan(clouds[0], None, sensor, 0.01, 0)
+    refined = preparation.prepare_scan(clouds[0], None, sensor, 0.01, 0, features=False)
+    assert refined.features is None and registered.features is not None
+    assert registered.points.dtype == np.float64 and np.array_equal(registered.points, grid)  # the grid's order
+    np.testing.assert_allclose(registered.normals, normals_lib.facing(grid, sensor), atol=1e-12)
+    assert refined.points.dtype == refined.normals.dtype == preparation.SCAN_DTYPE  # compact
+    assert not np.array_equal(refined.points, registered.points.astype(preparation.SCAN_DTYPE))  # another order ...
+    np.testing.assert_array_equal(_rows(refined.points, refined.normals),
+                                  _rows(registered.points, registered.normals))  # ... the same rows
+    assert np.shares_memory(refined.tree.data, refined.points)  # the points held once
+    _, idx = refined.tree.query(refined.points[::7])
+    assert np.array_equal(idx, np.arange(0, len(refined.points), 7))
 
 
-def test_a_prepared_scans_features_are_its_keypoints_rows_rounded():
+def test_a_registration_scans_features_are_its_keypoints_rows():
     clouds, _ = ring_scans(2)
     scan = preparation.prepare_scan(clouds[0], None, clouds[0].mean(axis=0) + [0.0, 0.0, 1.0], 0.01, 0)
-    assert scan.features.dtype == preparation.FEATURE_DTYPE
     whole = fpfh.fpfh(scan.points, scan.normals, sizes.FEATURE_VOXELS * 0.01, edges.FEATURE_NEIGHBOURS)
-    np.testing.assert_allclose(scan.features, whole[scan.keypoints], rtol=1e-6, atol=1e-4)
+    np.testing.assert_allclose(scan.features, whole[scan.keypoints], rtol=1e-9, atol=1e-9)

@@ -18,13 +18,11 @@ from rpmnet_jax.multiway import candidate_pairs, radon_scores, sizes
 from rpmnet_jax.pair_edges import edges as edges_lib
 
 MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
-SCAN_DTYPE = np.float32  # a scan set's prepared scans (points in their sensor's frame moved by the common shift, unit
-# normals), in their k-d tree's order: 24 bytes a point, not 48 + 32 (the tree's float64 copy and row map); a site's
-# scans are most of its memory. Rounding moves a point by at most 2^-24 of its coordinate (6 microns at 100 m);
-# every estimate from them is in float64
-FEATURE_DTYPE = np.float32  # their FPFH (up to edges.FEATURE_POINTS x 33 a scan: 1 MB in float64, the largest part
-# of a site's scans before the refinement); matched in float64 (feature_ransac.nearest_rows): rounding to 2^-24 of a
-# bin's value (0..100) changes a nearest neighbour only between near-equal ones
+SCAN_DTYPE = np.float32  # a refinement's scans (points in their sensor's frame moved by the common shift, unit
+# normals), in their k-d tree's order: 24 bytes a point, not 48 + 8 (its tree's row map): a site's finer scans are
+# most of its memory. Rounding moves a point by at most 2^-24 of its coordinate (6 microns at 100 m); every estimate
+# from them is in float64. The registration's scans stay float64 in their own order: in float32 and the tree's order
+# (their keypoints and ICP rows drawn otherwise) seed 7's look-alike streets folded again (tests/sites_test.py)
 
 
 class Prepared(NamedTuple):
@@ -65,21 +63,19 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
     ``None``; its ``sensor (3,)`` or ``None``, in the moved frame) voxel-downsampled at ``voxel``, with normals
     (averaged per voxel, else estimated: facing the sensor, else away from the centroid) and, with ``features``,
     the FPFH of its keypoints (drawn with seed ``index``): an :class:`~rpmnet_jax.pair_edges.edges.Scan`, or the
-    number of points left when fewer than ``MIN_VOXEL_POINTS``. The points are in the k-d tree's order
-    (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.reordered`: held once, no row map), they and the normals in
-    ``SCAN_DTYPE``, the features in ``FEATURE_DTYPE``; the keypoints are drawn among them in that order."""
+    number of points left when fewer than ``MIN_VOXEL_POINTS``. Without ``features`` (a refinement's scan) the points
+    are in the k-d tree's order (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.reordered`: held once, no row map), they
+    and the normals in ``SCAN_DTYPE``."""
     p, n = sampling.voxel_downsample(points if shift is None else points - shift, normals, voxel)
     if len(p) < MIN_VOXEL_POINTS:
         return len(p)
     tree = kdtree.KdTree(p)  # one tree for the normals and the scan
     if n is None:
         n = normals_lib.estimate_normals(p, tree=tree) if sensor is None else normals_lib.facing(p, sensor, tree=tree)
-    tree, order = tree.reordered(SCAN_DTYPE)
-    p, n = tree.data, n[order].astype(SCAN_DTYPE)
     if not features:  # a refinement's scan
-        return edges_lib.Scan(p, n, tree)
-    scan = edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=index, tree=tree)
-    return scan._replace(features=scan.features.astype(FEATURE_DTYPE))
+        tree, order = tree.reordered(SCAN_DTYPE)
+        return edges_lib.Scan(tree.data, n[order].astype(SCAN_DTYPE), tree)
+    return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=index, tree=tree)
 
 
 def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int, levelled=None) -> tuple:
