@@ -206,22 +206,29 @@ def test_a_group_moves_as_one_and_is_not_placed_in_free_space(monkeypatch):
         np.testing.assert_allclose(poses[s], truth[s], atol=1e-9)
 
 
-def test_a_campaign_places_each_scan_onto_its_placed_partners_only(monkeypatch):
-    """Step 4 with ``partners``: a scan is registered onto its placed partners merged (not every placed scan), a
-    scan without a placed partner waits for a later round, and a group is tried from at most ``max_tries``
-    members a round."""
+def _identity_align(monkeypatch) -> list:
+    """Step 4's ``align`` replaced by one that answers the identity, fitness 1: the sizes of the models it was given,
+    in call order (the list returned)."""
     import types
 
-    clouds, _ = synthetic_scans()
-    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]  # three scans
-    calls = []
+    sizes_seen = []
 
     def align(src, model, *a, **k):
-        calls.append(len(model))
+        sizes_seen.append(len(model))
         return types.SimpleNamespace(transform=np.eye(4), fitness=1.0, correspondences=np.zeros((0, 2), int),
                                      likely_wrong=False)
 
     monkeypatch.setattr(placement.alignment, "align", align)
+    return sizes_seen
+
+
+def test_a_campaign_places_each_scan_onto_its_placed_partners_only(monkeypatch):
+    """Step 4 with ``partners``: a scan is registered onto its placed partners merged (not every placed scan), a
+    scan without a placed partner waits for a later round, and a group is tried from at most ``max_tries``
+    members a round."""
+    clouds, _ = synthetic_scans()
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]  # three scans
+    calls = _identity_align(monkeypatch)
     poses = np.full((3, 4, 4), np.nan)
     poses[0] = np.eye(4)
     partners = {1: [0], 2: [1]}.get  # a chain: scan 2's partner is placed only once scan 1 is
@@ -249,18 +256,9 @@ def test_a_campaign_places_a_scan_onto_the_placed_scans_its_pair_edges_join_firs
     """Step 4 with ``joined``: a scan whose pair edges join it to placed scans is registered onto those alone,
     not onto its best-scored partners (a site's look-alike streets: seed 12's station 645 had right edges to two
     placed neighbours, its best-scored placed partners lay 100-400 m away); without a placed one, onto those."""
-    import types
-
     clouds, _ = synthetic_scans()
     scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]  # three scans
-    models = []
-
-    def align(src, model, *a, **k):
-        models.append(len(model))
-        return types.SimpleNamespace(transform=np.eye(4), fitness=1.0, correspondences=np.zeros((0, 2), int),
-                                     likely_wrong=False)
-
-    monkeypatch.setattr(placement.alignment, "align", align)
+    models = _identity_align(monkeypatch)
     size = [len(placement.merged(scans, np.tile(np.eye(4), (3, 1, 1)), [s], voxel)[0]) for s in (0, 1)]
     # (placed, best-scored partners, joined, the scan registered onto)
     for placed, best, joined, onto in (((0, 1), [1], {2: [0]}, 0), ((0, 1), [1], {}, 1), ((0,), [0], {2: [1]}, 0)):

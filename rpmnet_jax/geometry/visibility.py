@@ -51,8 +51,9 @@ def margin(cell: float) -> float:
 class RangeImage(NamedTuple):
     sensor: np.ndarray  # (3,) in the scan's (shifted) frame
     free: np.ndarray  # (A·E,) float32: free space is nearer than this (the nearest range of the bin and its 8
-    # neighbours, or of the bins a grid point's cell spans); -inf where the bin saw nothing. One 4-byte array, 0.26 MB a scan (two 8-byte ones before: 1 GB
-    # on a site's 1,000 stations); the float32 rounding (< 1e-5 m at 100 m) lies far inside the margin
+    # neighbours, or of the bins a grid point's cell spans); -inf where the bin saw nothing. One 4-byte array, 0.26 MB
+    # a scan (two 8-byte ones before: 1 GB on a site's 1,000 stations); the float32 rounding (< 1e-5 m at 100 m) lies
+    # far inside the margin
 
 
 def _bins(points: np.ndarray, sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -58,10 +58,8 @@ def make_scan(points: np.ndarray, normals: np.ndarray, feature_radius: float | N
     """A :class:`Scan` of voxel-downsampled ``points, normals (V, 3)``; with ``feature_radius``, the FPFH (that
     radius, over the whole scan) of its keypoints: one per cube of ``KEYPOINT_VOXELS × voxel`` (every point at
     ``voxel`` 0), at most ``FEATURE_POINTS`` drawn with ``seed`` (an int or a sequence of ints). ``tree``: a k-d
-    tree of ``points`` already built (else built here). Float32 points and normals stay float32 (the features are
-    computed in float64)."""
-    points, normals = (x if np.asarray(x).dtype in (np.float32, np.float64) else np.asarray(x, np.float64)
-                       for x in (points, normals))  # float32 stays (a scan set's compact scans)
+    tree of ``points`` already built (else built here)."""
+    points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
     scan = Scan(points, normals, tree if tree is not None else kdtree.KdTree(points))
     if feature_radius is None:
         return scan
