@@ -110,6 +110,29 @@ def test_a_float32_reordered_tree_is_the_exact_tree_of_the_rounded_points():
         assert np.array_equal(idx, want_i)
 
 
+def test_a_rounded_tree_keeps_the_callers_points_and_rows_and_finds_the_rounded_points_neighbours():
+    """``rounded(np.float32)``: the tree's own copy of the points (and its splits) in float32, the caller's float64
+    points and the row map kept: its neighbours are SciPy's among the rounded points, as rows of the caller's
+    array, also after pickling (built again with its copy rounded)."""
+    import pickle
+
+    rng = np.random.default_rng(6)
+    points = rng.uniform(-50, 50, (4000, 3))
+    queries = rng.uniform(-50, 50, (900, 3))
+    whole = kdtree.KdTree(points)
+    tree = whole.rounded(np.float32)
+    assert tree.data is whole.data and tree.data.dtype == np.float64 and tree.nodes.rows is whole.nodes.rows
+    assert (tree.nodes.points.dtype, tree.nodes.split.dtype) == (np.float32, np.float32)
+    rounded = points.astype(np.float32).astype(np.float64)
+    want_d, want_i = cKDTree(rounded).query(queries, k=4, distance_upper_bound=3.0)
+    for t in (tree, pickle.loads(pickle.dumps(tree))):
+        assert t.data.dtype == np.float64 and t.nodes.points.dtype == np.float32 and len(t.nodes.rows) == len(points)
+        np.testing.assert_array_equal(t.data, points)
+        dist, idx = t.query(queries, k=4, distance_upper_bound=3.0)
+        np.testing.assert_allclose(dist, want_d, rtol=1e-12)
+        assert np.array_equal(idx, want_i)
+
+
 def test_the_compiled_query_gives_tree_positions_of_the_nearest():
     """``nearest`` (for compiled loops): squared distances, ascending, and positions in tree order."""
     rng = np.random.default_rng(3)

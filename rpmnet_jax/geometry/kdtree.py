@@ -265,9 +265,21 @@ class KdTree:
         return _of_nodes(self.nodes._replace(points=points, rows=np.empty(0, self.nodes.rows.dtype), split=split)), \
             self.nodes.rows
 
+    def rounded(self, dtype) -> KdTree:
+        """This tree with its own copy of the points (and its splits) in ``dtype`` (float32: half the bytes), the
+        caller's ``data`` and row map kept: its queries answer the same rows but for near ties, their distances
+        those of the rounded points (a valid tree of them, as :meth:`reordered`'s)."""
+        tree = object.__new__(KdTree)
+        tree.data, tree.n = self.data, self.n
+        tree.nodes = self.nodes._replace(points=self.nodes.points.astype(dtype, copy=False),
+                                         split=self.nodes.split.astype(dtype, copy=False))
+        return tree
+
     def __reduce__(self):  # pickled as its points; the tree is built again where it is unpickled (a Dask worker);
         # a reordered tree as its nodes (its points are its data: nothing twice, the same tree)
-        return (_of_nodes, (self.nodes,)) if self.data is self.nodes.points else (KdTree, (self.data,))
+        if self.data is self.nodes.points:
+            return _of_nodes, (self.nodes,)
+        return _rebuilt, (self.data, self.nodes.points.dtype.str)
 
     def query(self, queries: np.ndarray, k: int = 1, distance_upper_bound: float = np.inf):
         """``(distances, indices)`` of the ``k`` nearest points of each of ``queries (Q, 3)``: ``(Q,)`` each for
@@ -281,6 +293,12 @@ class KdTree:
 def _index_dtype(n: int):
     """The nodes' and row map's integer dtype for a tree of ``n`` points."""
     return np.int32 if n < 2 ** 31 else np.int64
+
+
+def _rebuilt(data: np.ndarray, dtype: str) -> KdTree:
+    """The tree of ``data`` built again, its own copy of the points in ``dtype`` (:meth:`KdTree.rounded`)."""
+    tree = KdTree(data)
+    return tree if np.dtype(dtype) == tree.nodes.points.dtype else tree.rounded(np.dtype(dtype))
 
 
 def _of_nodes(nodes: Nodes) -> KdTree:

@@ -21,8 +21,10 @@ MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is to
 SCAN_DTYPE = np.float32  # a refinement's scans (points in their sensor's frame moved by the common shift, unit
 # normals), in their k-d tree's order: 24 bytes a point, not 48 + 8 (its tree's row map): a site's finer scans are
 # most of its memory. Rounding moves a point by at most 2^-24 of its coordinate (6 microns at 100 m); every estimate
-# from them is in float64. The registration's scans stay float64 in their own order: in float32 and the tree's order
-# (their keypoints and ICP rows drawn otherwise) seed 7's look-alike streets folded again (tests/sites_test.py)
+# from them is in float64. The registration's scans keep their points in float64 in their own order (in float32 and
+# the tree's order, their keypoints and ICP rows drawn otherwise, seed 7's look-alike streets folded again:
+# tests/sites_test.py); their normals, FPFH features and their tree's copy of the points are rounded to this once
+# made (the normals and features from the float64 points): 1.12 -> ~0.65 MB a site station
 
 
 class Prepared(NamedTuple):
@@ -65,7 +67,8 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
     the FPFH of its keypoints (drawn with seed ``index``): an :class:`~rpmnet_jax.pair_edges.edges.Scan`, or the
     number of points left when fewer than ``MIN_VOXEL_POINTS``. Without ``features`` (a refinement's scan) the points
     are in the k-d tree's order (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.reordered`: held once, no row map), they
-    and the normals in ``SCAN_DTYPE``."""
+    and the normals in ``SCAN_DTYPE``; with them the points stay as they are (float64), the normals, features and
+    the tree's copy of the points (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.rounded`) in ``SCAN_DTYPE``."""
     p, n = sampling.voxel_downsample(points if shift is None else points - shift, normals, voxel)
     if len(p) < MIN_VOXEL_POINTS:
         return len(p)
@@ -75,7 +78,9 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
     if not features:  # a refinement's scan
         tree, order = tree.reordered(SCAN_DTYPE)
         return edges_lib.Scan(tree.data, n[order].astype(SCAN_DTYPE), tree)
-    return edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=index, tree=tree)
+    scan = edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=index, tree=tree)
+    return scan._replace(normals=scan.normals.astype(SCAN_DTYPE), tree=scan.tree.rounded(SCAN_DTYPE),
+                         features=scan.features.astype(SCAN_DTYPE))  # after the normals and features are made
 
 
 def pairs_to_register(scans, all_pairs_up_to: int, neighbours: int, seed: int, levelled=None) -> tuple:

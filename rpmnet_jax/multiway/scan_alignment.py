@@ -86,7 +86,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rpmnet_jax import config as config_lib, stopwatch
+from rpmnet_jax import config as config_lib, memory, stopwatch
 from rpmnet_jax.classical import scoring
 from rpmnet_jax.geometry import cloud, offsets, threads
 from rpmnet_jax.multiway import candidate_pairs, conflicts, edge_graph, options as options_lib, placement, preparation
@@ -156,6 +156,7 @@ def align_scans(clouds, normals=None, *, viewpoints="auto",
         for stage in (_pair_edges, _pose_graph, _place_others, _finer_scans, _refine, _let_go_of_scans,
                       _name_conflicts):
             stage(run)
+            memory.give_back()  # what the stage freed (the network's buffers, the scans let go)
         return _answer(run)
 
 
@@ -535,6 +536,7 @@ def _finer_scans(run: _Run) -> None:
         run.engine.release()
         run.visible.release_images()  # made again for the conflicts named at the end, once the finer scans are gone
         coarse_voxel, run.prepared = run.prepared.voxel, run.prepared._replace(scans=None)
+        memory.give_back()  # the registration's scans, before the finer ones take their place
         fine = preparation.prepare_scans(clouds, normals, o.refine_voxel_size, run.shift, viewpoints, run.engine,
                                          run.tick("preparing scans for the refinement"), features=False)
         run.max_dist *= fine.voxel / coarse_voxel
