@@ -66,8 +66,9 @@ def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, g
     for i, j in directed:
         rows = _rows(scans, i, j, num_points, seed)  # drawn again each step (cheap): a task needs no rows sent
         src = np.ascontiguousarray(scans[i].points[rows], np.float64)
-        a, b, r = _pair_system(scans[j].tree.nodes, scans[j].normals, src, np.asarray(poses[i], np.float64),
-                               np.asarray(poses[j], np.float64), centre, float(gate), kdtree.chunks_for(len(src)))
+        a, b, r = _pair_system(scans[j].tree.nodes, scans[j].points, scans[j].normals, src,
+                               np.asarray(poses[i], np.float64), np.asarray(poses[j], np.float64), centre,
+                               float(gate), kdtree.chunks_for(len(src)))
         if not len(r):
             continue
         for key, block in (((i, i), a[:6, :6]), ((j, j), a[6:, 6:]), ((i, j), a[:6, 6:]), ((j, i), a[6:, :6])):
@@ -79,10 +80,10 @@ def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, g
 
 
 @numba.njit(cache=True)
-def _row_terms(nodes, normals, src, pose_i, pose_j, centre, gate, out, start, stop):
+def _row_terms(nodes, points, normals, src, pose_i, pose_j, centre, gate, out, start, stop):
     """Rows ``start..stop`` of :func:`_pair_system`: ``out[m] = (found, r, d r / d (ω_i, v_i, ω_j, v_j))`` of
-    ``src[m]`` (scan ``i``'s frame) moved by ``pose_i``, its nearest point of scan ``j`` (``nodes``; within
-    ``gate``) moved by ``pose_j``, both about ``centre``."""
+    ``src[m]`` (scan ``i``'s frame) moved by ``pose_i``, its nearest point of scan ``j`` (found in ``nodes``, taken
+    from ``points``, the tree's data; within ``gate``) moved by ``pose_j``, both about ``centre``."""
     work = kdtree.scratch()
     d2, at = np.empty(1), np.empty(1, np.int64)
     n = len(nodes.points)
@@ -97,7 +98,8 @@ def _row_terms(nodes, normals, src, pose_i, pose_j, centre, gate, out, start, st
         if at[0] == n:
             out[m, 0] = 0.0
             continue
-        p, k = nodes.points[at[0]], kdtree.row_of(nodes, at[0])
+        k = kdtree.row_of(nodes, at[0])
+        p = points[k]  # the caller's point (a rounded tree's copy only finds it)
         for a in range(3):
             q[a] = pose_j[a, 0] * p[0] + pose_j[a, 1] * p[1] + pose_j[a, 2] * p[2] + pose_j[a, 3] - centre[a]
             nq[a] = pose_j[a, 0] * normals[k, 0] + pose_j[a, 1] * normals[k, 1] + pose_j[a, 2] * normals[k, 2]
@@ -115,14 +117,15 @@ def _row_terms(nodes, normals, src, pose_i, pose_j, centre, gate, out, start, st
 
 
 @numba.njit(cache=True, parallel=True)
-def _pair_system(nodes, normals, src, pose_i, pose_j, centre, gate, chunks):
+def _pair_system(nodes, points, normals, src, pose_i, pose_j, centre, gate, chunks):
     """``(A (12, 12), b (12,), r (C,))``: the normal equations' matrix and gradient at ``(ω_i, v_i, ω_j, v_j)`` of
     the Tukey-weighted (scale ``gate``) point-to-plane residuals ``r`` of the rows of ``src (M, 3)`` that found a
     neighbour: the rows' terms on ``chunks`` cores, their sums in row order (the same wherever it runs)."""
     out = np.empty((len(src), 14))
     per = (len(src) + chunks - 1) // chunks
     for c in numba.prange(chunks):
-        _row_terms(nodes, normals, src, pose_i, pose_j, centre, gate, out, c * per, min((c + 1) * per, len(src)))
+        _row_terms(nodes, points, normals, src, pose_i, pose_j, centre, gate, out, c * per,
+                   min((c + 1) * per, len(src)))
     a, b = np.zeros((12, 12)), np.zeros(12)
     r = np.empty(len(src))
     count = 0
