@@ -36,7 +36,14 @@ def test_a_refinement_scan_keeps_each_normal_with_its_point_in_the_trees_order()
 
 
 def test_a_registration_scans_features_are_its_keypoints_rows():
+    """Its points float64 in their own order; its normals and the FPFH of its keypoints made from those in float64,
+    then held in float32 (``SCAN_DTYPE``), as its tree's copy of the points (the caller's rows kept)."""
     clouds, _ = ring_scans(2)
-    scan = preparation.prepare_scan(clouds[0], None, clouds[0].mean(axis=0) + [0.0, 0.0, 1.0], 0.01, 0)
-    whole = fpfh.fpfh(scan.points, scan.normals, sizes.FEATURE_VOXELS * 0.01, edges.FEATURE_NEIGHBOURS)
-    np.testing.assert_allclose(scan.features, whole[scan.keypoints], rtol=1e-9, atol=1e-9)
+    sensor = clouds[0].mean(axis=0) + [0.0, 0.0, 1.0]
+    scan = preparation.prepare_scan(clouds[0], None, sensor, 0.01, 0)
+    assert scan.points.dtype == np.float64 and scan.tree.data is scan.points
+    normals = normals_lib.facing(scan.points, sensor)
+    whole = fpfh.fpfh(scan.points, normals, sizes.FEATURE_VOXELS * 0.01, edges.FEATURE_NEIGHBOURS)
+    np.testing.assert_array_equal(scan.normals, normals.astype(preparation.SCAN_DTYPE))
+    np.testing.assert_array_equal(scan.features, whole[scan.keypoints].astype(preparation.SCAN_DTYPE))
+    assert scan.tree.nodes.points.dtype == preparation.SCAN_DTYPE and len(scan.tree.nodes.rows) == len(scan.points)
