@@ -25,7 +25,8 @@ def test_a_refinement_scan_keeps_each_normal_with_its_point_in_the_trees_order()
     refined = preparation.prepare_scan(clouds[0], None, sensor, 0.01, 0, features=False)
     assert refined.features is None and registered.features is not None
     assert registered.points.dtype == np.float64 and np.array_equal(registered.points, grid)  # the grid's order
-    np.testing.assert_allclose(registered.normals, normals_lib.facing(grid, sensor), atol=1e-12)
+    np.testing.assert_array_equal(registered.normals,  # made in float64, held rounded
+                                  normals_lib.facing(grid, sensor).astype(preparation.SCAN_DTYPE))
     assert refined.points.dtype == refined.normals.dtype == preparation.SCAN_DTYPE  # compact
     assert not np.array_equal(refined.points, registered.points.astype(preparation.SCAN_DTYPE))  # another order ...
     np.testing.assert_array_equal(_rows(refined.points, refined.normals),
