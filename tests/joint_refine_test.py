@@ -128,10 +128,11 @@ def test_the_normal_equations_hold_only_the_pairs_blocks():
                                atol=1e-10 * np.abs(dense_step).max())
 
 
-def _reference_pair(scans, i, j, poses, num_points, seed, centre, gate):
+def _reference_pair(scans, i, j, poses, num_points, seed, centre, gate, cosine=-1.0):
     """One directed pair's ``(A (12, 12), b (12,), r)`` in plain NumPy with SciPy's k-d tree: the Tukey-weighted
     point-to-plane residuals of scan ``i``'s seeded rows on scan ``j``'s tangent planes and their derivatives in
-    ``(ω_i, v_i, ω_j, v_j)`` (left twists about ``centre``)."""
+    ``(ω_i, v_i, ω_j, v_j)`` (left twists about ``centre``), the rows whose normals meet their neighbours' at
+    ``|cos|`` below ``cosine`` left out."""
     from scipy.spatial import cKDTree
 
     rows = joint_refine._rows(scans, i, j, num_points, seed)
@@ -139,6 +140,9 @@ def _reference_pair(scans, i, j, poses, num_points, seed, centre, gate):
     in_j = (x - poses[j][:3, 3]) @ poses[j][:3, :3]
     dist, idx = cKDTree(scans[j].points).query(in_j, distance_upper_bound=gate)
     near = np.isfinite(dist)
+    n_i = scans[i].normals[rows] @ poses[i][:3, :3].T
+    n_j = scans[j].normals[np.minimum(idx, len(scans[j].points) - 1)] @ poses[j][:3, :3].T
+    near &= np.abs(np.sum(n_i * n_j, axis=1)) >= cosine
     x = x[near] - centre
     q = scans[j].points[idx[near]] @ poses[j][:3, :3].T + poses[j][:3, 3] - centre
     n = scans[j].normals[idx[near]] @ poses[j][:3, :3].T
@@ -166,6 +170,46 @@ def test_the_compiled_pair_equations_match_a_numpy_reference():
                 np.testing.assert_allclose(blocks[s, t], block, rtol=0, atol=1e-10 * np.abs(a).max())
             np.testing.assert_allclose(g[i], b[:6], rtol=0, atol=1e-10 * np.abs(b).max())
             np.testing.assert_allclose(g[j], b[6:], rtol=0, atol=1e-10 * np.abs(b).max())
+
+
+def test_rows_whose_normals_disagree_are_left_out_as_a_numpy_reference_leaves_them():
+    """With ``normal_cosine`` the compiled rows drop a row whose normal and its neighbour's meet at more than the
+    angle, as the NumPy reference does, and only those: fewer rows than without, the same equations as the
+    reference's on the rows kept (noisy scans: their normals disagree somewhere)."""
+    clouds, truth = ring_scans(4)
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
+    start = _perturbed(truth, 0.1, 0.0005, seed=4)
+    centre = np.mean([p[:3, 3] for p in start], axis=0)
+    gate = sizes.DISTANCE_VOXELS * voxel
+    for i, j in ((0, 1), (3, 2)):
+        every = joint_refine.pair_equations(scans, [(i, j)], start, 1500, 0, centre, gate)[2]
+        blocks, g, r = joint_refine.pair_equations(scans, [(i, j)], start, 1500, 0, centre, gate, 0.985)
+        a, b, want = _reference_pair(scans, i, j, start, 1500, 0, centre, gate, 0.985)
+        assert 50 < len(r) < len(every) and len(r) == len(want)
+        np.testing.assert_allclose(r, want, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(blocks[i, j], a[:6, 6:], rtol=0, atol=1e-10 * np.abs(a).max())
+        np.testing.assert_allclose(g[i], b[:6], rtol=0, atol=1e-10 * np.abs(b).max())
+
+
+def test_a_count_of_rows_per_gate():
+    """``num_points`` one per gate: each stage's equations on its own count of rows (the counts recorded where the
+    pairs are mapped); a list of the wrong length is refused before any work."""
+    clouds, truth = ring_scans(3)
+    scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
+    start = _perturbed(truth, 0.5, 0.001, seed=1)
+    seen = []
+
+    def recorded(fn, chunks, *args):
+        seen.append(args[1])
+        return joint_refine.in_process(scans)(fn, chunks, *args)
+
+    out = joint_refine.refine_jointly(scans, start, [(0, 1), (1, 2)], sizes.DISTANCE_VOXELS * voxel, anchor=0,
+                                      gates=(1.0, 0.5), num_points=(300, 700), max_iterations=2, map_pairs=recorded)
+    assert out.iterations == len(seen) and seen[0] == 300 and seen[-1] == 700 and sorted(seen) == seen
+    with pytest.raises(ValueError, match="num_points"):
+        joint_refine.refine_jointly(scans, start, [(0, 1)], 0.1, anchor=0, gates=(1.0, 0.5), num_points=(300,),
+                                    map_pairs=recorded)
+    assert out.iterations == len(seen)  # nothing mapped for the refused call
 
 
 def test_steps_that_line_up_and_shrink_are_extrapolated():

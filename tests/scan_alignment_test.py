@@ -296,7 +296,7 @@ def test_a_finer_refinement_voxel_makes_coarse_poses_precise(monkeypatch):
 
     def recorded(*args, **kwargs):
         passes.append({k: kwargs.get(k) for k in ("gates", "num_points", "tolerance", "max_iterations",
-                                                  "max_extrapolation")})
+                                                  "max_extrapolation", "normal_cosine")})
         return refine_jointly(*args, **kwargs)
 
     monkeypatch.setattr(joint_refine, "refine_jointly", recorded)
@@ -308,10 +308,10 @@ def test_a_finer_refinement_voxel_makes_coarse_poses_precise(monkeypatch):
     assert errors[None] > 0.05 and errors[0.002] < 0.02, errors
     assert refined[0.002] > refined[None]  # both passes counted: at the registration's voxel, then the finer one
     first = {"gates": joint_refine.GATES, "num_points": joint_refine.POINTS, "tolerance": joint_refine.TOLERANCE,
-             "max_iterations": None, "max_extrapolation": None}  # the defaults
+             "max_iterations": None, "max_extrapolation": None, "normal_cosine": None}  # the defaults
     finer = {"gates": refinement.FINER_GATES, "num_points": refinement.FINER_POINTS,
              "tolerance": refinement.FINER_TOLERANCE, "max_iterations": refinement.FINER_ITERATIONS,
-             "max_extrapolation": refinement.FINER_EXTRAPOLATION}
+             "max_extrapolation": refinement.FINER_EXTRAPOLATION, "normal_cosine": refinement.FINER_NORMAL_COSINE}
     assert passes == [first, first, finer]
     with pytest.raises(ValueError, match="refine_voxel_size"):
         rpmnet_jax.ScanOptions(refine_voxel_size=0.0)

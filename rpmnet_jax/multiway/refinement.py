@@ -16,9 +16,19 @@ FINER_GATES = (joint_refine.GATES[-1], joint_refine.GATES[-1] / 2)  # the second
 # stations of seed 8 (tuning), the finer pass started from the truth: 0.5 -> 15 within 0.2 deg and 1 cm (median
 # 19 mm), 0.25 -> 965 (4.2 mm), 0.125 -> 994 (3.4 mm): the wider gate takes in rows off the surface. From the first
 # pass's poses 0.125 alone is slow to reach what 0.25 then 0.125 reach (below)
-FINER_POINTS = 4 * joint_refine.POINTS  # the second pass's points per directed pair (those 858 stations placed from
-# seed 8's 1,000 at the gate 0.25, 8 steps: 123 -> 44 beyond 1 cm RMS, median 6.6 -> 4.7 mm over 1,000 rows; a step 2x
-# the time); more do not help: from the truth 16,000 rows end further off than 4,000 (950 within, not 965)
+FINER_POINTS = (4 * joint_refine.POINTS, 8 * joint_refine.POINTS)  # the second pass's points per directed pair, a
+# count per gate (those 858 stations placed from seed 8's 1,000 at the gate 0.25, 8 steps: 1,000 -> 4,000 rows took
+# 123 -> 44 beyond 1 cm RMS). With FINER_NORMAL_COSINE, seed 14's 1,000 (tuning data since: not held-out), its finer
+# pass replayed from the first pass's poses: 4,000 rows at both gates 988 within 0.2 deg and 1 cm (12 steps), 8,000
+# or 12,000 at the last 996 (11 steps; 12,000 as long as 4,000 at both); from the truth at the last gate 4,000 rows
+# 980, 12,000 999: the optimum itself drifts where few rows hold the along-street sliding, and more rows hold it
+FINER_NORMAL_COSINE = 0.985  # the second pass leaves out a row whose normal and its neighbour's are more than ~10 deg
+# apart: at a voxel that straddles a box's edge (a wall's corner, a car's end) point and normal mix two faces and lie
+# off both, by up to a quarter voxel, and a scan that sees one face only disagrees there. Seed 14's 1,000 (tuning
+# data), the finer pass started from the truth, 4,000 rows, the last gate: 957 within without, 975 at 0.94 (20 deg),
+# 980 at 0.985; from the first pass's poses at both gates 953 -> 988 within, 16 -> 12 steps (186 -> 159 s). Normal-
+# space sampling (as many rows of each normal's direction) went the other way: 751 (the rare normals are those off
+# the surface). Chosen there
 FINER_TOLERANCE = 1.5e-5  # the second pass's stop: no pose moved more than this (radians; x the set's radius: 5.5 mm
 # on the town), in at most FINER_ITERATIONS steps a gate, each extrapolated up to FINER_EXTRAPOLATION times: the set
 # bends slowly (a branch of stations near the anchor held ~1.5 cm off at 3e-5)
@@ -33,7 +43,8 @@ MEASURED_POINTS = 10_000  # the refinement's edges are scored on every k-th poin
 # object's scan (fewer points) is scored on all of them as before
 PASSES = {False: {"gates": joint_refine.GATES, "num_points": joint_refine.POINTS, "tolerance": joint_refine.TOLERANCE},
           True: {"gates": FINER_GATES, "num_points": FINER_POINTS, "tolerance": FINER_TOLERANCE,
-                 "max_iterations": FINER_ITERATIONS, "max_extrapolation": FINER_EXTRAPOLATION}}  # by ``finer``
+                 "max_iterations": FINER_ITERATIONS, "max_extrapolation": FINER_EXTRAPOLATION,
+                 "normal_cosine": FINER_NORMAL_COSINE}}  # by ``finer``
 
 
 def overlapping_pairs(scans, poses, placed, max_dist, min_overlap, neighbours=None) -> list:
@@ -86,8 +97,8 @@ def jointly(engine, scans, poses, placed, max_dist, options, keep, tick, finer: 
     work on the pairs done by ``engine`` (:meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.map_pairs`: on a
     cluster, tasks): (poses, kept edges, the other edges, the number of pairs refined). ``finer``: the second pass
     (``refine_voxel_size``), from poses the first pass refined: its finest gate and half that (:data:`FINER_GATES`),
-    on more points (:data:`FINER_POINTS`), to a tighter stop (:data:`FINER_TOLERANCE`, :data:`FINER_ITERATIONS`,
-    :data:`FINER_EXTRAPOLATION`). Not ``measured`` (a first pass whose
+    on more points (:data:`FINER_POINTS`), the rows whose normals disagree left out (:data:`FINER_NORMAL_COSINE`),
+    to a tighter stop (:data:`FINER_TOLERANCE`, :data:`FINER_ITERATIONS`, :data:`FINER_EXTRAPOLATION`). Not ``measured`` (a first pass whose
     edges a finer pass replaces): no edges, ``[]`` and ``[]``."""
     o = options
     pairs = overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)

@@ -54,10 +54,12 @@ def _rows(scans, i: int, j: int, num_points: int, seed: int) -> np.ndarray:
 
 
 @threads.compiled_loops()  # on a worker too: BLAS on one thread, as in this process
-def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, gate: float):
+def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, gate: float,
+                   normal_cosine: float = -1.0):
     """``(blocks, g, residuals (C,))`` of the Tukey-weighted point-to-plane residuals of the directed pairs
     ``directed [(i, j), ...]`` (up to ``num_points`` seeded rows of scan ``i`` against scan ``j``'s tangent
-    planes) at ``poses`` (indexable by scan), gate ``gate`` (left twists about ``centre``): ``blocks`` maps
+    planes; a row whose normal and its neighbour's meet at a cosine below ``normal_cosine``, either way round,
+    left out) at ``poses`` (indexable by scan), gate ``gate`` (left twists about ``centre``): ``blocks`` maps
     ``(i, j)`` to the ``(6, 6)`` block of the normal equations' matrix at scans ``i, j``, held only where it can be
     non-zero (the diagonal of the scans in a pair and both orders of each pair), ``g`` maps a scan to its ``(6,)``
     gradient: O(pairs) memory, not O(S²). ``scans`` need hold only those of ``directed`` (a task's share)."""
@@ -66,9 +68,10 @@ def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, g
     for i, j in directed:
         rows = _rows(scans, i, j, num_points, seed)  # drawn again each step (cheap): a task needs no rows sent
         src = np.ascontiguousarray(scans[i].points[rows], np.float64)
-        a, b, r = _pair_system(scans[j].tree.nodes, scans[j].points, scans[j].normals, src,
+        src_normals = np.ascontiguousarray(scans[i].normals[rows])
+        a, b, r = _pair_system(scans[j].tree.nodes, scans[j].points, scans[j].normals, src, src_normals,
                                np.asarray(poses[i], np.float64), np.asarray(poses[j], np.float64), centre,
-                               float(gate), kdtree.chunks_for(len(src)))
+                               float(gate), float(normal_cosine), kdtree.chunks_for(len(src)))
         if not len(r):
             continue
         for key, block in (((i, i), a[:6, :6]), ((j, j), a[6:, 6:]), ((i, j), a[:6, 6:]), ((j, i), a[6:, :6])):
@@ -80,10 +83,11 @@ def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, g
 
 
 @numba.njit(cache=True)
-def _row_terms(nodes, points, normals, src, pose_i, pose_j, centre, gate, out, start, stop):
+def _row_terms(nodes, points, normals, src, src_normals, pose_i, pose_j, centre, gate, cosine, out, start, stop):
     """Rows ``start..stop`` of :func:`_pair_system`: ``out[m] = (found, r, d r / d (ω_i, v_i, ω_j, v_j))`` of
-    ``src[m]`` (scan ``i``'s frame) moved by ``pose_i``, its nearest point of scan ``j`` (found in ``nodes``, taken
-    from ``points``, the tree's data; within ``gate``) moved by ``pose_j``, both about ``centre``."""
+    ``src[m]`` (scan ``i``'s frame, normal ``src_normals[m]``) moved by ``pose_i``, its nearest point of scan ``j``
+    (found in ``nodes``, taken from ``points``, the tree's data; within ``gate``; its normal at ``|cos|`` ≥
+    ``cosine`` to the row's, or not found) moved by ``pose_j``, both about ``centre``."""
     work = kdtree.scratch()
     d2, at = np.empty(1), np.empty(1, np.int64)
     n = len(nodes.points)
@@ -100,10 +104,16 @@ def _row_terms(nodes, points, normals, src, pose_i, pose_j, centre, gate, out, s
             continue
         k = kdtree.row_of(nodes, at[0])
         p = points[k]  # the caller's point (a rounded tree's copy only finds it)
+        agree = 0.0
         for a in range(3):
             q[a] = pose_j[a, 0] * p[0] + pose_j[a, 1] * p[1] + pose_j[a, 2] * p[2] + pose_j[a, 3] - centre[a]
             nq[a] = pose_j[a, 0] * normals[k, 0] + pose_j[a, 1] * normals[k, 1] + pose_j[a, 2] * normals[k, 2]
+            agree += nq[a] * (pose_i[a, 0] * src_normals[m, 0] + pose_i[a, 1] * src_normals[m, 1]
+                              + pose_i[a, 2] * src_normals[m, 2])
             x[a] -= centre[a]
+        if abs(agree) < cosine:
+            out[m, 0] = 0.0
+            continue
         r = (x[0] - q[0]) * nq[0] + (x[1] - q[1]) * nq[1] + (x[2] - q[2]) * nq[2]
         e0, e1, e2 = x[0] - q[0], x[1] - q[1], x[2] - q[2]
         out[m, 0], out[m, 1] = 1.0, r
@@ -117,14 +127,15 @@ def _row_terms(nodes, points, normals, src, pose_i, pose_j, centre, gate, out, s
 
 
 @numba.njit(cache=True, parallel=True)
-def _pair_system(nodes, points, normals, src, pose_i, pose_j, centre, gate, chunks):
+def _pair_system(nodes, points, normals, src, src_normals, pose_i, pose_j, centre, gate, cosine, chunks):
     """``(A (12, 12), b (12,), r (C,))``: the normal equations' matrix and gradient at ``(ω_i, v_i, ω_j, v_j)`` of
-    the Tukey-weighted (scale ``gate``) point-to-plane residuals ``r`` of the rows of ``src (M, 3)`` that found a
-    neighbour: the rows' terms on ``chunks`` cores, their sums in row order (the same wherever it runs)."""
+    the Tukey-weighted (scale ``gate``) point-to-plane residuals ``r`` of the rows of ``src (M, 3)`` (normals
+    ``src_normals (M, 3)``) that found a neighbour whose normal agrees (:func:`_row_terms`): the rows' terms on
+    ``chunks`` cores, their sums in row order (the same wherever it runs)."""
     out = np.empty((len(src), 14))
     per = (len(src) + chunks - 1) // chunks
     for c in numba.prange(chunks):
-        _row_terms(nodes, points, normals, src, pose_i, pose_j, centre, gate, out, c * per,
+        _row_terms(nodes, points, normals, src, src_normals, pose_i, pose_j, centre, gate, cosine, out, c * per,
                    min((c + 1) * per, len(src)))
     a, b = np.zeros((12, 12)), np.zeros(12)
     r = np.empty(len(src))
@@ -218,12 +229,15 @@ def in_process(scans):
     return lambda fn, chunks, *args: [fn(scans, chunk, *args) for chunk in chunks]
 
 
-def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num_points: int = POINTS,
+def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num_points=POINTS,
                    gates=GATES, max_iterations: int = MAX_ITERATIONS, tolerance: float = TOLERANCE, seed: int = 0,
-                   max_extrapolation: float = MAX_EXTRAPOLATION, tick=None, map_pairs=None) -> Refinement:
+                   max_extrapolation: float = MAX_EXTRAPOLATION, normal_cosine: float = -1.0, tick=None,
+                   map_pairs=None) -> Refinement:
     """Refines ``poses (S, 4, 4)`` of :class:`~rpmnet_jax.pair_edges.edges.Scan` s over the overlapping ``pairs
-    [(i, j), ...]``: up to ``num_points`` points of each scan of a pair against the other's tangent planes,
-    both directions; ``gates`` × ``max_distance`` in turn (never below ``GATE_SIGMAS`` robust standard
+    [(i, j), ...]``: up to ``num_points`` points (one count, or one per gate) of each scan of a pair against the
+    other's tangent planes, both directions, a point left out where its normal and its neighbour's meet at a cosine
+    below ``normal_cosine`` (-1: none; Rusinkiewicz and Levoy's "Efficient variants of the ICP algorithm", 3DIM
+    2001, reject such pairs); ``gates`` × ``max_distance`` in turn (never below ``GATE_SIGMAS`` robust standard
     deviations of the residuals), up to ``max_iterations`` steps each, a stage ending when no pose moves by
     more than ``tolerance`` (radians; × the scans' radius in translation); a step along the stage's last one is
     extrapolated (:func:`extrapolation`, at most ``max_extrapolation`` times), a stage's last step too. Scan
@@ -231,6 +245,9 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
     ``map_pairs(fn, chunks, *args)``: ``[fn(scans, chunk, *args) for chunk in chunks]`` anywhere (a cluster:
     :meth:`~rpmnet_jax.pair_edges.pair_engine.PairEngine.map_pairs`); the normal equations are summed over
     shares of ``CHUNK`` directed pairs in a fixed order, so the poses do not depend on where the shares ran."""
+    counts = [num_points] * len(gates) if np.ndim(num_points) == 0 else list(num_points)
+    if len(counts) != len(gates):
+        raise ValueError(f"num_points: one count or one per gate ({len(gates)}), got {len(counts)}")
     poses = np.array(poses, np.float64)
     pairs = [tuple(int(s) for s in p) for p in pairs]
     if not pairs:
@@ -244,12 +261,12 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
     centre = placed.mean(axis=0)
     radius = float(np.max(np.linalg.norm(placed - centre, axis=1))) or 1.0
     total, converged, sigma = 0, True, 0.0
-    for stage, scale in enumerate(gates):
+    for stage, (scale, count) in enumerate(zip(gates, counts)):
         stage_done, last = False, None
         for _ in range(max_iterations):
             total += 1
             gate = max(scale * max_distance, GATE_SIGMAS * sigma)
-            parts = map_pairs(pair_equations, chunks, poses, num_points, seed, centre, gate)
+            parts = map_pairs(pair_equations, chunks, poses, int(count), seed, centre, gate, normal_cosine)
             blocks, g, residuals = _normal_equations(parts, len(scans))
             if len(residuals) < 6 * len(used):
                 break
