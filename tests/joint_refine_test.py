@@ -192,8 +192,8 @@ def test_rows_whose_normals_disagree_are_left_out_as_a_numpy_reference_leaves_th
 
 
 def test_a_count_of_rows_per_gate():
-    """``num_points`` one per gate: each stage's equations on its own count of rows (the counts recorded where the
-    pairs are mapped); a list of the wrong length is refused before any work."""
+    """``num_points`` one per gate: each stage's equations on its own count of rows, and ``normal_cosine`` in each
+    (recorded where the pairs are mapped); a list of the wrong length is refused before any work."""
     clouds, truth = ring_scans(3)
     scans, voxel = preparation.prepare_scans(clouds, None, None)[:2]
     start = _perturbed(truth, 0.5, 0.001, seed=1)
@@ -201,11 +201,15 @@ def test_a_count_of_rows_per_gate():
 
     def recorded(fn, chunks, *args):
         seen.append(args[1])
+        cosines.append(args[-1])
         return joint_refine.in_process(scans)(fn, chunks, *args)
 
+    cosines = []
     out = joint_refine.refine_jointly(scans, start, [(0, 1), (1, 2)], sizes.DISTANCE_VOXELS * voxel, anchor=0,
-                                      gates=(1.0, 0.5), num_points=(300, 700), max_iterations=2, map_pairs=recorded)
+                                      gates=(1.0, 0.5), num_points=(300, 700), max_iterations=2, map_pairs=recorded,
+                                      normal_cosine=0.9)
     assert out.iterations == len(seen) and seen[0] == 300 and seen[-1] == 700 and sorted(seen) == seen
+    assert cosines == [0.9] * len(seen)  # the normal test reaches every step's equations
     with pytest.raises(ValueError, match="num_points"):
         joint_refine.refine_jointly(scans, start, [(0, 1)], 0.1, anchor=0, gates=(1.0, 0.5), num_points=(300,),
                                     map_pairs=recorded)

@@ -98,8 +98,8 @@ def jointly(engine, scans, poses, placed, max_dist, options, keep, tick, finer: 
     cluster, tasks): (poses, kept edges, the other edges, the number of pairs refined). ``finer``: the second pass
     (``refine_voxel_size``), from poses the first pass refined: its finest gate and half that (:data:`FINER_GATES`),
     on more points (:data:`FINER_POINTS`), the rows whose normals disagree left out (:data:`FINER_NORMAL_COSINE`),
-    to a tighter stop (:data:`FINER_TOLERANCE`, :data:`FINER_ITERATIONS`, :data:`FINER_EXTRAPOLATION`). Not ``measured`` (a first pass whose
-    edges a finer pass replaces): no edges, ``[]`` and ``[]``."""
+    to a tighter stop (:data:`FINER_TOLERANCE`, :data:`FINER_ITERATIONS`, :data:`FINER_EXTRAPOLATION`). Not
+    ``measured`` (a first pass whose edges a finer pass replaces): no edges, ``[]`` and ``[]``."""
     o = options
     pairs = overlapping_pairs(scans, poses, placed, max_dist, o.min_overlap, o.refine_neighbours)
     poses = joint_refine.refine_jointly(scans, poses, pairs, max_dist, min(placed), seed=o.seed, tick=tick,

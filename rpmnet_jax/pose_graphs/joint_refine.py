@@ -104,16 +104,18 @@ def _row_terms(nodes, points, normals, src, src_normals, pose_i, pose_j, centre,
             continue
         k = kdtree.row_of(nodes, at[0])
         p = points[k]  # the caller's point (a rounded tree's copy only finds it)
-        agree = 0.0
         for a in range(3):
             q[a] = pose_j[a, 0] * p[0] + pose_j[a, 1] * p[1] + pose_j[a, 2] * p[2] + pose_j[a, 3] - centre[a]
             nq[a] = pose_j[a, 0] * normals[k, 0] + pose_j[a, 1] * normals[k, 1] + pose_j[a, 2] * normals[k, 2]
-            agree += nq[a] * (pose_i[a, 0] * src_normals[m, 0] + pose_i[a, 1] * src_normals[m, 1]
-                              + pose_i[a, 2] * src_normals[m, 2])
             x[a] -= centre[a]
-        if abs(agree) < cosine:
-            out[m, 0] = 0.0
-            continue
+        if cosine > -1.0:  # -1: every row (the first pass: no work spent here)
+            agree = 0.0
+            for a in range(3):
+                agree += nq[a] * (pose_i[a, 0] * src_normals[m, 0] + pose_i[a, 1] * src_normals[m, 1]
+                                  + pose_i[a, 2] * src_normals[m, 2])
+            if not abs(agree) >= cosine:  # a NaN normal too
+                out[m, 0] = 0.0
+                continue
         r = (x[0] - q[0]) * nq[0] + (x[1] - q[1]) * nq[1] + (x[2] - q[2]) * nq[2]
         e0, e1, e2 = x[0] - q[0], x[1] - q[1], x[2] - q[2]
         out[m, 0], out[m, 1] = 1.0, r
