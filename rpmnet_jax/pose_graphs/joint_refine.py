@@ -68,7 +68,8 @@ def pair_equations(scans, directed, poses, num_points: int, seed: int, centre, g
     for i, j in directed:
         rows = _rows(scans, i, j, num_points, seed)  # drawn again each step (cheap): a task needs no rows sent
         src = np.ascontiguousarray(scans[i].points[rows], np.float64)
-        src_normals = np.ascontiguousarray(scans[i].normals[rows])
+        src_normals = np.ascontiguousarray(scans[i].normals[rows] if normal_cosine > -1.0
+                                           else scans[i].normals[:0])  # -1: never read, not gathered
         a, b, r = _pair_system(scans[j].tree.nodes, scans[j].points, scans[j].normals, src, src_normals,
                                np.asarray(poses[i], np.float64), np.asarray(poses[j], np.float64), centre,
                                float(gate), float(normal_cosine), kdtree.chunks_for(len(src)))
