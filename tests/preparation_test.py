@@ -1,12 +1,13 @@
 """Step 1 of align_scans, one scan: a refinement's scan (prepared without features) holds the voxel grid's points
-and normals rounded to ``SCAN_DTYPE``, in its k-d tree's order, each normal still with its point; a registration's
-scan holds them in float64 in the grid's order, its features those of its keypoints' rows."""
+rounded to ``SCAN_DTYPE`` and its normals packed (geometry.packed_normals), in its k-d tree's order, each normal
+still with its point; a registration's scan holds them in float64 in the grid's order, its features those of its
+keypoints' rows."""
 
 import numpy as np
 
 from conftest import ring_scans
 from rpmnet_jax.classical import fpfh
-from rpmnet_jax.geometry import normals as normals_lib, sampling
+from rpmnet_jax.geometry import normals as normals_lib, packed_normals, sampling
 from rpmnet_jax.multiway import preparation, sizes
 from rpmnet_jax.pair_edges import edges
 
@@ -27,10 +28,11 @@ def test_a_refinement_scan_keeps_each_normal_with_its_point_in_the_trees_order()
     assert registered.points.dtype == np.float64 and np.array_equal(registered.points, grid)  # the grid's order
     np.testing.assert_array_equal(registered.normals,  # made in float64, held rounded
                                   normals_lib.facing(grid, sensor).astype(preparation.SCAN_DTYPE))
-    assert refined.points.dtype == refined.normals.dtype == preparation.SCAN_DTYPE  # compact
+    assert refined.points.dtype == preparation.SCAN_DTYPE and packed_normals.is_packed(refined.normals)  # compact
     assert not np.array_equal(refined.points, registered.points.astype(preparation.SCAN_DTYPE))  # another order ...
-    np.testing.assert_array_equal(_rows(refined.points, refined.normals),
-                                  _rows(registered.points, registered.normals))  # ... the same rows
+    packed = packed_normals.unpack(packed_normals.pack(registered.normals))
+    np.testing.assert_array_equal(_rows(refined.points, packed_normals.unpack(refined.normals)),
+                                  _rows(registered.points, packed))  # ... the same rows
     assert np.shares_memory(refined.tree.data, refined.points)  # the points held once
     _, idx = refined.tree.query(refined.points[::7])
     assert np.array_equal(idx, np.arange(0, len(refined.points), 7))

@@ -5,6 +5,7 @@ scene's scans; bad input refused."""
 import numpy as np
 import pytest
 
+from rpmnet_jax.geometry import packed_normals
 from rpmnet_jax.multiway import preparation, radon_scores
 from rpmnet_jax.simulation import sites
 
@@ -26,7 +27,7 @@ def site():
 def _turned(scan, degrees):
     c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
     rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return _Scan(scan.points @ rotation.T, scan.normals @ rotation.T)
+    return _Scan(scan.points @ rotation.T, packed_normals.unit(scan.normals) @ rotation.T)
 
 
 def test_a_turn_about_the_vertical_keeps_the_score(site):
@@ -67,7 +68,8 @@ def test_the_ground_under_the_sensor_is_found():
 def test_only_a_levelled_scene_uses_it(site):
     prepared, _ = site
     assert preparation.levelled(prepared) is not None
-    on_its_side = prepared._replace(scans=[_Scan(s.points[:, [2, 0, 1]], s.normals[:, [2, 0, 1]])
+    on_its_side = prepared._replace(scans=[_Scan(s.points[:, [2, 0, 1]],
+                                                 packed_normals.unit(s.normals)[:, [2, 0, 1]])
                                            for s in prepared.scans])
     assert preparation.levelled(on_its_side) is None
     assert preparation.levelled(prepared._replace(sensors=[None] * 12)) is None

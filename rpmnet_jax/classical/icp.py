@@ -36,7 +36,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from rpmnet_jax.geometry import cloud, kdtree
+from rpmnet_jax.geometry import cloud, kdtree, packed_normals
 
 
 class Refinement(NamedTuple):
@@ -248,7 +248,8 @@ def _stage(src, ref, nodes, normals, src_normals, transform, max_distance, scale
 def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_normals=None,
                        scales=PAIR.scales, max_iterations: int = PAIR.max_iterations, tolerance: float = 1e-4,
                        neighbours: int = 3, ref_tree: kdtree.KdTree | None = None) -> Refinement:
-    """Refines ``init (4, 4)`` moving ``src (N, 3)`` onto ``ref (M, 3)`` with unit ``ref_normals (M, 3)``.
+    """Refines ``init (4, 4)`` moving ``src (N, 3)`` onto ``ref (M, 3)`` with unit ``ref_normals (M, 3)`` (or
+    packed: :mod:`~rpmnet_jax.geometry.packed_normals`, unpacked here).
 
     ``src_normals (N, 3)``: unit normals of the source (either sign), for the symmetric planes of the fine
     stages; ``None``: the reference's tangent planes throughout. ``max_distance``: the finest gate (same
@@ -257,7 +258,8 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
     stage.
     """
     src = np.ascontiguousarray(src, np.float64)
-    normals = np.asarray(ref_normals)  # float32 kept (a scan set's compact scans: not copied for each pair)
+    normals = packed_normals.unit(np.asarray(ref_normals))  # float32 kept (a scan set's compact scans: not copied
+    # for each pair); a refinement's packed ones unpacked, once a pair
     normals = np.ascontiguousarray(normals, normals.dtype if normals.dtype == np.float32 else np.float64)
     src_n = None if src_normals is None else np.ascontiguousarray(src_normals, np.float64)
     if not max_distance > 0:

@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from rpmnet_jax.geometry import kdtree
+from rpmnet_jax.geometry import kdtree, packed_normals
 from rpmnet_jax.ops import se3
 
 class Score(NamedTuple):
@@ -65,8 +65,9 @@ _BUCKETS = _directions(NORMAL_DIRECTIONS)
 
 
 def _bucket(normals) -> np.ndarray:
-    """``(N,)`` each unit normal's bucket: the nearest of the :data:`NORMAL_DIRECTIONS` directions."""
-    return np.argmax(np.asarray(normals, np.float64) @ _BUCKETS.T, axis=1)
+    """``(N,)`` each unit normal's bucket (``normals`` unit vectors or packed:
+    :func:`~rpmnet_jax.geometry.packed_normals.unit`): the nearest of the :data:`NORMAL_DIRECTIONS` directions."""
+    return np.argmax(np.asarray(packed_normals.unit(normals), np.float64) @ _BUCKETS.T, axis=1)
 
 
 def dominant_share(normals) -> float:
@@ -101,7 +102,8 @@ class PlaneFit(NamedTuple):
 
 def plane_fit(src, ref, ref_normals, transform, correspondences) -> PlaneFit:
     """Point-to-plane residuals and information matrix of ``transform (4, 4)`` moving ``src (N, 3)`` onto
-    ``ref (M, 3)`` (unit ``ref_normals (M, 3)``) over ``correspondences (n, 2)`` (e.g. a :class:`Score`'s).
+    ``ref (M, 3)`` (unit ``ref_normals (M, 3)``, or packed: :mod:`~rpmnet_jax.geometry.packed_normals`) over
+    ``correspondences (n, 2)`` (e.g. a :class:`Score`'s).
 
     The information is ``Σ_k J_kᵀ J_k / σ²`` with rows ``J_k = [p_k × m_k, m_k]``: ``p_k`` a source point,
     ``m_k = Rᵀ n_k`` its partner's normal in the source frame, so it is the information of the right
@@ -115,7 +117,7 @@ def plane_fit(src, ref, ref_normals, transform, correspondences) -> PlaneFit:
     if len(corr) == 0:
         return PlaneFit(np.zeros((6, 6)), np.zeros(0))
     p = src[corr[:, 0]].astype(np.float64)
-    n = np.asarray(ref_normals)[corr[:, 1]].astype(np.float64)
+    n = packed_normals.unit(np.asarray(ref_normals), corr[:, 1]).astype(np.float64)
     residuals = np.sum((se3.apply(t, p) - ref[corr[:, 1]].astype(np.float64)) * n, axis=1)
     m = n @ t[:3, :3]  # R^T n, row by row
     jac = np.concatenate([np.cross(p, m), m], axis=1)

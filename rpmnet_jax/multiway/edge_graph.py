@@ -45,8 +45,16 @@ class FreeSpace:
         self.images = {}
 
     def release_images(self) -> None:
-        """Lets the range images go (made again when next needed): a site's finer scans need their memory."""
+        """Lets the range images go, made again where next needed (~3 ms a scan; a site's 1,000 stations: 250 MB
+        held between the stages otherwise)."""
         self.images = {}
+
+    def compact(self) -> None:
+        """Lets the range images go and holds the points in float32, its own copies (the registration's scans it
+        shared them with go next): a site's finer scans need the memory (1,000 stations: 180 -> 90 MB; the
+        rounding, < 0.1 mm at 1 km, lies far inside the check's margin)."""
+        self.release_images()
+        self.points = [None if p is None else np.asarray(p, np.float32) for p in self.points]
 
     def image(self, k: int):
         if k not in self.images:

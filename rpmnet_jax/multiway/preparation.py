@@ -14,16 +14,17 @@ from typing import NamedTuple
 import numpy as np
 
 from rpmnet_jax import memory
-from rpmnet_jax.geometry import cloud, kdtree, normals as normals_lib, sampling, sensors, threads
+from rpmnet_jax.geometry import cloud, kdtree, normals as normals_lib, packed_normals, sampling, sensors, threads
 from rpmnet_jax.multiway import candidate_pairs, radon_scores, sizes
 from rpmnet_jax.pair_edges import edges as edges_lib
 
 MIN_VOXEL_POINTS = 16  # a scan with fewer points after voxel downsampling is too coarse to register
 GIVE_BACK_EVERY = 50  # scans prepared between two returns of the heap's free pages (rpmnet_jax.memory): site seed
 # 14's 1,000 finer scans ended their preparation with 224 MB freed but resident, the run's peak
-SCAN_DTYPE = np.float32  # a refinement's scans (points in their sensor's frame moved by the common shift, unit
-# normals), in their k-d tree's order: 24 bytes a point, not 48 + 8 (its tree's row map): a site's finer scans are
-# most of its memory. Rounding moves a point by at most 2^-24 of its coordinate (6 microns at 100 m); every estimate
+SCAN_DTYPE = np.float32  # a refinement's scans (points in their sensor's frame moved by the common shift; their unit
+# normals packed in two int16: geometry.packed_normals), in their k-d tree's order: 16 bytes a point, not 48 + 8 (its
+# tree's row map): a site's finer scans are most of its memory (seed 14's 1,000: points 552 MB, normals 552 -> 184 MB,
+# trees 152 MB). Rounding moves a point by at most 2^-24 of its coordinate (6 microns at 100 m); every estimate
 # from them is in float64. The registration's scans keep their points in float64 in their own order (in float32 and
 # the tree's order, their keypoints and ICP rows drawn otherwise, seed 7's look-alike streets folded again:
 # tests/sites_test.py); their normals, FPFH features and their tree's copy of the points are rounded to this once
@@ -76,9 +77,10 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
     (averaged per voxel, else estimated: facing the sensor, else away from the centroid) and, with ``features``,
     the FPFH of its keypoints (drawn with seed ``index``): an :class:`~rpmnet_jax.pair_edges.edges.Scan`, or the
     number of points left when fewer than ``MIN_VOXEL_POINTS``. Without ``features`` (a refinement's scan) the points
-    are in the k-d tree's order (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.reordered`: held once, no row map), they
-    and the normals in ``SCAN_DTYPE``; with them the points stay as they are (float64), the normals, features and
-    the tree's copy of the points (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.rounded`) in ``SCAN_DTYPE``."""
+    are in the k-d tree's order (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.reordered`: held once, no row map), in
+    ``SCAN_DTYPE``, the normals packed (:func:`~rpmnet_jax.geometry.packed_normals.pack`); with them the points stay
+    as they are (float64), the normals, features and the tree's copy of the points
+    (:meth:`~rpmnet_jax.geometry.kdtree.KdTree.rounded`) in ``SCAN_DTYPE``."""
     p, n = sampling.voxel_downsample(points if shift is None else points - shift, normals, voxel)
     if len(p) < MIN_VOXEL_POINTS:
         return len(p)
@@ -87,7 +89,7 @@ def prepare_scan(points, normals, sensor, voxel: float, index: int, features: bo
         n = normals_lib.estimate_normals(p, tree=tree) if sensor is None else normals_lib.facing(p, sensor, tree=tree)
     if not features:  # a refinement's scan
         tree, order = tree.reordered(SCAN_DTYPE)
-        return edges_lib.Scan(tree.data, n[order].astype(SCAN_DTYPE), tree)
+        return edges_lib.Scan(tree.data, packed_normals.pack(n[order]), tree)
     scan = edges_lib.make_scan(p, n, sizes.FEATURE_VOXELS * voxel, voxel, seed=index, tree=tree)
     return scan._replace(normals=scan.normals.astype(SCAN_DTYPE), tree=scan.tree.rounded(SCAN_DTYPE),
                          features=scan.features.astype(SCAN_DTYPE))  # after the normals and features are made

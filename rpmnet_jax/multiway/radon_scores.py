@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rpmnet_jax.geometry import cloud
+from rpmnet_jax.geometry import cloud, packed_normals
 
 RADIUS = 0.65  # the footprint's reach, × the median robust scan radius (300 site stations: 0.5 → 74% of the
 # near pairs among the 6 best, 0.65 → 91%, 0.8 → about the same; tuning data)
@@ -111,10 +111,11 @@ class Footprints:
             raise ValueError("every scan needs its sensor's position")
         self.radius = RADIUS * float(np.median([cloud.robust_radius(s.points - c) for s, c in zip(scans, sensors)]))
         self.cell = self.radius / ALIGN_CELLS
-        scores, self.turns = similarities(np.stack([descriptor(s.points - c, s.normals, voxel, self.radius)
-                                                    for s, c in zip(scans, sensors)]))
+        scores, self.turns = similarities(np.stack([descriptor(s.points - c, packed_normals.unit(s.normals), voxel,
+                                                               self.radius) for s, c in zip(scans, sensors)]))
         self.scores = 0.5 * (scores + scores.T)
-        self.cells = [footprint(s.points - c, s.normals, self.cell, self.radius) for s, c in zip(scans, sensors)]
+        self.cells = [footprint(s.points - c, packed_normals.unit(s.normals), self.cell, self.radius)
+                      for s, c in zip(scans, sensors)]
         self._spectra = {}  # scan -> the rfft2 of its cells' image, complex64
 
     def ranked(self, best: int = RERANKED) -> np.ndarray:

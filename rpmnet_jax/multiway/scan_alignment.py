@@ -156,7 +156,8 @@ def align_scans(clouds, normals=None, *, viewpoints="auto",
         for stage in (_pair_edges, _pose_graph, _place_others, _finer_scans, _refine, _let_go_of_scans,
                       _name_conflicts):
             stage(run)
-            memory.give_back()  # what the stage freed (the network's buffers, the scans let go)
+            run.visible.release_images()  # made again where a later stage checks a scan
+            memory.give_back()  # what the stage freed (the network's buffers, the scans let go, the range images)
         return _answer(run)
 
 
@@ -312,6 +313,8 @@ def _pair_edges(run: _Run) -> None:
         labels = pose_graph.components(len(run.poses), [(e.source, e.target) for e in run.edges])
         weak = [p for p, answers in found.items() if not answers and labels[p[0]] != labels[p[1]]]
     if weak:
+        run.visible.release_images()  # beside the network's runtime: made again for the few edges it finds
+        memory.give_back()
         with clock.stage("network"):
             run.edges += [e for e in engine.network_edges(weak, run.tick("network edges"))
                           if run.pair_edge(e) and run.visible(e)]  # the classical edges' free-space check too
@@ -534,7 +537,7 @@ def _finer_scans(run: _Run) -> None:
     with run.clock.stage("refine"):
         clouds, normals, viewpoints = run.inputs
         run.engine.release()
-        run.visible.release_images()  # made again for the conflicts named at the end, once the finer scans are gone
+        run.visible.compact()  # images made again for the conflicts named at the end, once the finer scans are gone
         coarse_voxel, run.prepared = run.prepared.voxel, run.prepared._replace(scans=None)
         memory.give_back()  # the registration's scans, before the finer ones take their place
         fine = preparation.prepare_scans(clouds, normals, o.refine_voxel_size, run.shift, viewpoints, run.engine,

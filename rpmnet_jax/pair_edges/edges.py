@@ -13,7 +13,7 @@ import numpy as np
 
 from rpmnet_jax.ops import se3
 from rpmnet_jax.classical import feature_ransac, fpfh, icp, scoring
-from rpmnet_jax.geometry import kdtree, sampling
+from rpmnet_jax.geometry import kdtree, packed_normals, sampling
 from rpmnet_jax.pairwise import prepare
 
 FEATURE_POINTS = 4000  # FPFH keypoints per scan at most: one per cube of KEYPOINT_VOXELS voxels, a seeded random
@@ -32,7 +32,7 @@ class Scan(NamedTuple):
     edges, FPFH features of some of its points."""
 
     points: np.ndarray  # (V, 3) caller's units
-    normals: np.ndarray  # (V, 3)
+    normals: np.ndarray  # (V, 3) unit, or (V, 2) packed (a refinement's scan: geometry.packed_normals)
     tree: kdtree.KdTree
     keypoints: np.ndarray | None = None  # (M,) rows of ``points`` that carry features
     features: np.ndarray | None = None  # (M, 33) their FPFH
@@ -141,7 +141,8 @@ def network_starts(params, scans, pairs, *, cfg, num_points: int, num_iters: int
     of equal sample sizes share batched calls of ``batch_size`` (the last one padded), one compile per size."""
     from rpmnet_jax import registration  # JAX is imported when the network runs, not for the classical edges
 
-    prepared = [prepare.prepare_pair(scans[i].points, scans[j].points, scans[i].normals, scans[j].normals,
+    prepared = [prepare.prepare_pair(scans[i].points, scans[j].points, packed_normals.unit(scans[i].normals),
+                                     packed_normals.unit(scans[j].normals),
                                      num_points=num_points, seed=seed) for i, j in pairs]
     out = np.zeros((len(pairs), 4, 4))
     fn = registration.jitted(cfg, int(num_iters), "transforms")
