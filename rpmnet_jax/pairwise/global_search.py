@@ -22,6 +22,10 @@ from rpmnet_jax.pairwise import candidates, options as options_lib, prepare, sta
 
 
 
+HYPOTHESES_A_CALL = 6  # rotation starts a network call: 24 (or 60) at once held ~490 MB of activations at 256 points
+# (a site's placement: the run's peak); both groups' sizes divide by it, so one compiled shape
+
+
 @functools.lru_cache(maxsize=None)
 def rotation_hypotheses(kind: str = "icosahedral") -> np.ndarray:
     """``(H, 3, 3)`` rotations of a finite group (the identity first): 60 icosahedral or 24 octahedral."""
@@ -60,9 +64,10 @@ def screen_hypotheses(params, pair: prepare.PreparedPair, dense: prepare.DenseCl
     src = pair.src6[:, sampling.sample_indices(rng, pair.src6.shape[1], opts.points)]
     ref = pair.ref6[:, sampling.sample_indices(rng, pair.ref6.shape[1], opts.points)]
     fn = registration.jitted(cfg, int(opts.iters), _transforms_and_confidence, from_starts=True)
-    transforms, confidences = fn(params, src, ref, initial_transforms(opts.hypotheses))
-    nets = np.swapaxes(np.asarray(transforms, np.float64), 0, 1)  # (H, I, 3, 4)
-    confidences = np.asarray(confidences, np.float64)
+    inits = initial_transforms(opts.hypotheses)
+    parts = [fn(params, src, ref, inits[k:k + HYPOTHESES_A_CALL]) for k in range(0, len(inits), HYPOTHESES_A_CALL)]
+    nets = np.swapaxes(np.concatenate([np.asarray(t, np.float64) for t, _ in parts], axis=1), 0, 1)  # (H, I, 3, 4)
+    confidences = np.concatenate([np.asarray(c, np.float64) for _, c in parts])
     few = dense._replace(src=dense.src[sampling.sample_indices(rng, len(dense.src), opts.polish_points)])
     polished, scores = [], []
     for t in nets[:, -1]:
