@@ -202,10 +202,10 @@ def test_rows_whose_normals_disagree_are_left_out_as_a_numpy_reference_leaves_th
         np.testing.assert_allclose(g[i], b[:6], rtol=0, atol=1e-10 * np.abs(b).max())
 
 
-def test_a_refinements_packed_normals_are_read_as_the_reference_unpacks_them():
+def test_a_refinements_packed_normals_are_read_as_the_reference_unpacks_them(monkeypatch):
     """A refinement's scans (points in float32 in their tree's order, normals packed in two int16) give the
     reference's equations on the same rows, their normals unpacked; and the same poses as with the unit normals
-    the codes came from, but for the codes' rounding (under 1e-4 rad a normal)."""
+    the codes came from (held in float32), but for the codes' rounding (under 1e-4 rad a normal)."""
     clouds, truth = ring_scans(4)
     voxel = preparation.prepare_scans(clouds, None, None).voxel
     scans = preparation.prepare_scans(clouds, None, voxel, features=False).scans
@@ -220,15 +220,17 @@ def test_a_refinements_packed_normals_are_read_as_the_reference_unpacks_them():
         np.testing.assert_allclose(r, want, rtol=0, atol=1e-12)
         np.testing.assert_allclose(blocks[i, j], a[:6, 6:], rtol=0, atol=1e-10 * np.abs(a).max())
         np.testing.assert_allclose(g[i], b[:6], rtol=0, atol=1e-10 * np.abs(b).max())
-    unpacked = [s._replace(normals=packed_normals.unpack(s.normals)) for s in scans]
+    monkeypatch.setattr(preparation.packed_normals, "pack", lambda n: np.asarray(n, np.float32))  # not packed
+    unpacked = preparation.prepare_scans(clouds, None, voxel, features=False).scans
+    assert all(s.normals.dtype == np.float32 and s.normals.shape[1] == 3 for s in unpacked)
     pairs = [(0, 1), (1, 2), (2, 3), (0, 3)]
     packed_out = joint_refine.refine_jointly(scans, start, pairs, gate, anchor=0, normal_cosine=0.985)
     unit_out = joint_refine.refine_jointly(unpacked, start, pairs, gate, anchor=0, normal_cosine=0.985)
     assert not np.array_equal(packed_out.poses, start)
     assert not np.array_equal(unit_out.poses, packed_out.poses)  # the codes were read, not the unit normals
     moved = _relative_errors(unit_out.poses, packed_out.poses, clouds)
-    assert moved[:, 0].max() < 1e-7 and moved[:, 1].max() < 1e-10  # measured 5e-10 deg, 4e-13 m (noise-free views:
-    # the same optimum, the normals only weigh its directions)
+    assert moved[:, 0].max() < 1e-5 and moved[:, 1].max() < 1e-8  # measured 5e-7 deg, 5e-10 m on a 0.2-wide shape
+    # (noise-free views: the same optimum, the normals only weigh its directions)
 
 
 def test_a_count_of_rows_per_gate():

@@ -32,7 +32,8 @@ def test_every_normal_comes_back_within_the_bound_in_four_bytes():
 
 
 def test_a_normal_that_is_not_finite_comes_back_nan():
-    normals = np.array([[0.0, 0.0, 1.0], [np.nan, 0.0, 1.0], [0.0, np.inf, 0.0], [0.0, 0.0, 0.0]])
+    normals = np.array([[0.0, 0.0, 1.0], [np.nan, 0.0, 1.0], [0.0, np.inf, 0.0], [0.0, 0.0, 0.0],
+                        [0.0, 0.0, -np.inf], [1.0, 0.0, np.inf]])
     back = packed_normals.unpack(packed_normals.pack(normals))
     assert np.all(np.isfinite(back[0])) and np.all(np.isnan(back[1:]))
 

@@ -30,7 +30,7 @@ def test_a_refinement_scan_keeps_each_normal_with_its_point_in_the_trees_order()
                                   normals_lib.facing(grid, sensor).astype(preparation.SCAN_DTYPE))
     assert refined.points.dtype == preparation.SCAN_DTYPE and packed_normals.is_packed(refined.normals)  # compact
     assert not np.array_equal(refined.points, registered.points.astype(preparation.SCAN_DTYPE))  # another order ...
-    packed = packed_normals.unpack(packed_normals.pack(registered.normals))
+    packed = packed_normals.unpack(packed_normals.pack(normals_lib.facing(grid, sensor)))  # from float64, as made
     np.testing.assert_array_equal(_rows(refined.points, packed_normals.unpack(refined.normals)),
                                   _rows(registered.points, packed))  # ... the same rows
     assert np.shares_memory(refined.tree.data, refined.points)  # the points held once

@@ -261,7 +261,8 @@ def point_to_plane_icp(src, ref, ref_normals, init, max_distance: float, *, src_
     normals = packed_normals.unit(np.asarray(ref_normals))  # float32 kept (a scan set's compact scans: not copied
     # for each pair); a refinement's packed ones unpacked, once a pair
     normals = np.ascontiguousarray(normals, normals.dtype if normals.dtype == np.float32 else np.float64)
-    src_n = None if src_normals is None else np.ascontiguousarray(src_normals, np.float64)
+    src_n = None if src_normals is None else np.ascontiguousarray(packed_normals.unit(np.asarray(src_normals)),
+                                                                  np.float64)
     if not max_distance > 0:
         raise ValueError(f"max_distance must be > 0, got {max_distance}")
     if max_iterations < 1:

@@ -28,7 +28,7 @@ def pack(normals) -> np.ndarray:
         folded = (1.0 - np.abs(p[:, ::-1])) * signs
         p = np.where(n[:, 2:3] < 0.0, folded, p)
         codes = np.round(p * SCALE)
-    codes[~np.all(np.isfinite(codes), axis=1)] = NAN_CODE
+    codes[~(np.all(np.isfinite(n), axis=1) & np.all(np.isfinite(codes), axis=1))] = NAN_CODE  # (0, 0, inf) too
     return codes.astype(np.int16)
 
 

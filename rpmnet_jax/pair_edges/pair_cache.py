@@ -67,7 +67,8 @@ def code_digest() -> str:
 
 
 def scan_digest(scan: edges_lib.Scan) -> str:
-    """Content digest of a :class:`~rpmnet_jax.pair_edges.edges.Scan`: its points and normals ``(V, 3)``."""
+    """Content digest of a :class:`~rpmnet_jax.pair_edges.edges.Scan`: its points and normals (unit or packed: their
+    dtype and shape are in the digest)."""
     return digest(scan.points, scan.normals)
 
 

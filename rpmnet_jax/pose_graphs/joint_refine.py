@@ -277,7 +277,7 @@ def refine_jointly(scans, poses, pairs, max_distance: float, anchor: int, *, num
         for _ in range(max_iterations):
             total += 1
             gate = max(scale * max_distance, GATE_SIGMAS * sigma)
-            parts = map_pairs(pair_equations, chunks, poses, int(count), seed, centre, gate, normal_cosine)
+            parts = list(map_pairs(pair_equations, chunks, poses, int(count), seed, centre, gate, normal_cosine))
             blocks, g, magnitudes = _normal_equations(parts, len(scans))
             if len(magnitudes) < 6 * len(used):
                 break
