@@ -33,16 +33,12 @@ def pack(normals) -> np.ndarray:
 
 
 def unpack(codes, dtype=np.float32) -> np.ndarray:
-    """``(N, 3)`` unit normals in ``dtype`` of ``codes (N, 2)`` (:func:`pack`'s; ``NAN_CODE``: NaN)."""
-    codes = np.asarray(codes).reshape(-1, 2)
-    p = codes.astype(np.float64) / SCALE
-    z = 1.0 - np.abs(p).sum(axis=1)
-    signs = np.where(p >= 0.0, 1.0, -1.0)
-    p = np.where(z[:, None] < 0.0, (1.0 - np.abs(p[:, ::-1])) * signs, p)
-    n = np.concatenate([p, z[:, None]], axis=1)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    n[np.any(codes == NAN_CODE, axis=1)] = np.nan
-    return n.astype(dtype, copy=False)
+    """``(N, 3)`` unit normals in ``dtype`` of ``codes (N, 2)`` (:func:`pack`'s; ``NAN_CODE``: NaN), each read by
+    :func:`row`."""
+    codes = np.ascontiguousarray(codes, np.int16).reshape(-1, 2)
+    out = np.empty((len(codes), 3))
+    _unpack_rows(codes, out)
+    return out.astype(dtype, copy=False)
 
 
 def is_packed(normals) -> bool:
@@ -74,3 +70,10 @@ def row(normals, k, out) -> None:
         out[0], out[1], out[2] = x / norm, y / norm, z / norm
     else:
         out[0], out[1], out[2] = normals[k, 0], normals[k, 1], normals[k, 2]
+
+
+@numba.njit(cache=True)
+def _unpack_rows(codes, out) -> None:
+    """``out (N, 3)`` = every row of ``codes (N, 2)`` read by :func:`row`."""
+    for k in range(len(codes)):
+        row(codes, k, out[k])
